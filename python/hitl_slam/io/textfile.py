@@ -1,0 +1,287 @@
+"""Line-oriented text shared by the pose-graph readers and writers.
+
+Reads a (possibly compressed) file into lines, parses numbers with their file and line, builds every
+error message, and runs the tagged-line loop that g2o and TORO differ in only by their syntax.
+"""
+
+from __future__ import annotations
+
+import bz2
+import gzip
+import math
+import os
+import re
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hitl_slam.errors import InputError
+
+__all__ = [
+    "COMPRESSED_SUFFIXES",
+    "PathLike",
+    "RawGraph",
+    "Syntax",
+    "format_graph",
+    "input_error",
+    "parse_int",
+    "parse_tagged_lines",
+    "read_lines",
+]
+
+PathLike = str | os.PathLike[str]
+
+COMPRESSED_SUFFIXES = frozenset({".gz", ".bz2"})
+
+_INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
+# float() also accepts "1_000" and non-ASCII digits; a pose graph that contains them is more likely
+# corrupted than meant, so lines holding either are checked token by token against this grammar.
+_STRICT_FLOAT = re.compile(
+    r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan|inf|infinity)", re.ASCII | re.IGNORECASE
+)
+_FIX_LINE = "fix the line or delete it"
+
+
+def input_error(path: str, line: int | None, what: str, todo: str) -> InputError:
+    """The one place messages are shaped: ``{path}:{line}: {what is wrong}; {what to do}``."""
+    where = path if line is None else f"{path}:{line}"
+    return InputError(f"{where}: {what}; {todo}")
+
+
+def _read_bytes(name: str, suffix: str) -> bytes:
+    if suffix == ".gz":
+        with gzip.open(name, "rb") as f:
+            return f.read()
+    if suffix == ".bz2":
+        with bz2.open(name, "rb") as f:
+            return f.read()
+    with open(name, "rb") as f:
+        return f.read()
+
+
+def read_lines(path: PathLike) -> list[str]:
+    """The file's lines (``.gz``/``.bz2`` decompressed, UTF-8 with or without BOM).
+
+    Any line ending (LF, CRLF, CR) counts, so line numbers match what an editor shows.
+    """
+    name = os.fspath(path)
+    compressed = os.path.splitext(name)[1].lower()
+    try:
+        data = _read_bytes(name, compressed)
+    except FileNotFoundError:
+        raise input_error(
+            name, None, "no such file", "check the path and the working directory"
+        ) from None
+    except IsADirectoryError:
+        raise input_error(
+            name, None, "is a directory, not a file", "give the path of a file"
+        ) from None
+    except PermissionError:
+        raise input_error(name, None, "permission denied", "make the file readable") from None
+    except (OSError, EOFError, zlib.error) as exc:
+        what = "cannot be decompressed" if compressed in COMPRESSED_SUFFIXES else "cannot be read"
+        raise input_error(
+            name, None, f"{what} ({exc})", "check that the file is complete and not damaged"
+        ) from None
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        column = exc.start - data.rfind(b"\n", 0, exc.start)
+        raise input_error(
+            name,
+            line,
+            f"not UTF-8 text (byte 0x{data[exc.start]:02x} at column {column})",
+            "save the file as UTF-8 or plain ASCII text",
+        ) from None
+    return text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+
+
+def parse_int(path: str, line: int, token: str, name: str) -> int:
+    """An int64 field such as a vertex id; anything else is an error naming the field."""
+    try:
+        value = int(token) if token.isascii() and "_" not in token else None
+    except ValueError:
+        value = None
+    if value is None:
+        raise input_error(path, line, f"bad {name} {token!r} (expected an integer)", _FIX_LINE)
+    if not _INT64_MIN <= value <= _INT64_MAX:
+        raise input_error(path, line, f"{name} {token} does not fit in 64 bits", _FIX_LINE)
+    return value
+
+
+def _parse_floats(
+    path: str, line: int, tokens: Sequence[str], names: Sequence[str], tag: str, strict: bool
+) -> list[float]:
+    # The values are the last len(names) tokens; messages number fields with the tag as field 0.
+    offset = len(tokens) - len(names)
+    values: list[float] | None
+    try:
+        values = [float(t) for t in tokens[offset:]]
+    except ValueError:
+        values = None
+    if values is None or strict:
+        for k, token in enumerate(tokens[offset:]):
+            if not _STRICT_FLOAT.fullmatch(token):
+                raise input_error(
+                    path,
+                    line,
+                    f"bad number {token!r} for {names[k]} (field {offset + k} of {tag})",
+                    "write a decimal number such as 1.5 or -2e-3",
+                )
+        values = [float(t) for t in tokens[offset:]]
+    if not all(map(math.isfinite, values)):
+        k = next(k for k, v in enumerate(values) if not math.isfinite(v))
+        raise input_error(
+            path,
+            line,
+            f"{names[k]} is {tokens[offset + k]!r} (field {offset + k} of {tag}): NaN/inf "
+            "or a number too large for float64",
+            "replace it with a finite number or delete the line",
+        )
+    return values
+
+
+@dataclass(frozen=True)
+class Syntax:
+    """What distinguishes one pose-graph text format from another."""
+
+    name: str
+    vertex_tag: str
+    edge_tag: str
+    info_fields: tuple[str, str, str, str, str, str]
+    """The six information entries in the order the file writes them."""
+    info_index: tuple[tuple[int, int], ...]
+    """``(row, col)`` in the ``(x, y, theta)`` matrix of each of ``info_fields``."""
+    extra_tags: frozenset[str] = frozenset()
+    """Tags the format module interprets itself (collected, not skipped)."""
+
+    @property
+    def edge_fields(self) -> tuple[str, ...]:
+        return ("dx", "dy", "dtheta", *self.info_fields)
+
+    def usage(self) -> str:
+        edge = " ".join(("i", "j", *self.edge_fields))
+        return f"'{self.vertex_tag} id x y theta' and '{self.edge_tag} {edge}'"
+
+
+@dataclass
+class RawGraph:
+    """A parsed file before validation: ids as written, values as parsed, line numbers kept."""
+
+    path: str
+    vertex_ids: list[int] = field(default_factory=list)
+    vertex_lines: list[int] = field(default_factory=list)
+    poses: list[list[float]] = field(default_factory=list)
+    edge_ids: list[tuple[int, int]] = field(default_factory=list)
+    edge_lines: list[int] = field(default_factory=list)
+    edge_values: list[list[float]] = field(default_factory=list)
+    """Per edge: dx, dy, dtheta, then the six information entries in the file's order."""
+    extra: list[tuple[int, list[str]]] = field(default_factory=list)
+    """``(line, tokens)`` of every line whose tag is one of ``Syntax.extra_tags``."""
+    skipped: dict[str, int] = field(default_factory=dict)
+    skipped_first_line: dict[str, int] = field(default_factory=dict)
+    anchor: tuple[int, int] | None = None
+    """``(vertex id, line)`` of the vertex the file says to hold fixed, if it says so."""
+    merged_vertices: int = 0
+    dropped_self_loops: int = 0
+
+
+def _field_count_error(
+    path: str, line: int, tag: str, fields: Sequence[str], got: int
+) -> InputError:
+    return input_error(
+        path,
+        line,
+        f"{tag} needs {len(fields)} fields after the tag ({' '.join(fields)}), got {got}",
+        _FIX_LINE,
+    )
+
+
+def parse_tagged_lines(path: str, lines: Sequence[str], syntax: Syntax) -> RawGraph:
+    """Parse vertex and edge lines; collect ``extra_tags`` lines; count every other tag.
+
+    Blank lines and lines starting with ``#`` are ignored. Errors found on a single line (bad
+    numbers, field counts, NaN/inf, duplicate vertex ids, self-loops) are raised here.
+    """
+    raw = RawGraph(path)
+    vertex_tag, edge_tag = syntax.vertex_tag, syntax.edge_tag
+    vertex_fields = ("x", "y", "theta")
+    edge_fields = syntax.edge_fields
+    edge_usage = ("i", "j", *edge_fields)
+    first_definition: dict[int, int] = {}
+    for number, line in enumerate(lines, 1):
+        tokens = line.split()
+        if not tokens or tokens[0].startswith("#"):
+            continue
+        tag = tokens[0]
+        if tag not in (edge_tag, vertex_tag):
+            if tag in syntax.extra_tags:
+                raw.extra.append((number, tokens))
+            else:
+                raw.skipped[tag] = raw.skipped.get(tag, 0) + 1
+                raw.skipped_first_line.setdefault(tag, number)
+            continue
+        strict = not line.isascii() or line.count("_") != tag.count("_")
+        if tag == edge_tag:
+            if len(tokens) != 12:
+                raise _field_count_error(path, number, tag, edge_usage, len(tokens) - 1)
+            i = parse_int(path, number, tokens[1], "vertex id i")
+            j = parse_int(path, number, tokens[2], "vertex id j")
+            if i == j:
+                raise input_error(
+                    path,
+                    number,
+                    f"edge from vertex {i} to itself (self-loop)",
+                    "an edge must join two different vertices; fix the ids or delete the line",
+                )
+            raw.edge_values.append(_parse_floats(path, number, tokens, edge_fields, tag, strict))
+            raw.edge_ids.append((i, j))
+            raw.edge_lines.append(number)
+        else:
+            if len(tokens) != 5:
+                raise _field_count_error(path, number, tag, ("id", *vertex_fields), len(tokens) - 1)
+            vertex_id = parse_int(path, number, tokens[1], "vertex id")
+            first = first_definition.setdefault(vertex_id, number)
+            if first != number:
+                raise input_error(
+                    path,
+                    number,
+                    f"duplicate vertex id {vertex_id} (first defined at line {first})",
+                    "give every vertex its own id, or delete one of the two lines",
+                )
+            raw.poses.append(_parse_floats(path, number, tokens, vertex_fields, tag, strict))
+            raw.vertex_ids.append(vertex_id)
+            raw.vertex_lines.append(number)
+    return raw
+
+
+def format_graph(
+    syntax: Syntax,
+    vertex_ids: NDArray[np.int64],
+    poses: NDArray[np.float64],
+    edge_ids: NDArray[np.int64],
+    measurements: NDArray[np.float64],
+    information: NDArray[np.float64],
+    extra_lines: Sequence[str] = (),
+) -> str:
+    """The file text: vertices, then ``extra_lines``, then edges, floats written exactly (repr)."""
+    rows = [r for r, _ in syntax.info_index]
+    cols = [c for _, c in syntax.info_index]
+    edge_values = np.hstack([measurements, information[:, rows, cols]])
+    # Python's float repr is the shortest text that reads back to the same double.
+    out = [
+        f"{syntax.vertex_tag} {vid} {' '.join(map(repr, pose))}"
+        for vid, pose in zip(vertex_ids.tolist(), poses.tolist(), strict=True)
+    ]
+    out.extend(extra_lines)
+    out.extend(
+        f"{syntax.edge_tag} {i} {j} {' '.join(map(repr, values))}"
+        for (i, j), values in zip(edge_ids.tolist(), edge_values.tolist(), strict=True)
+    )
+    return "\n".join(out) + "\n"

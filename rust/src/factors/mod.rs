@@ -1,0 +1,202 @@
+//! Factors: residual blocks of the least-squares cost. Each one is whitened (its cost is
+//! `|r|^2`, the information already folded in) and linearizes itself with analytic Jacobians
+//! in the solver's chart (see `Pose2::retract`).
+
+mod between;
+mod prior;
+
+pub use between::BetweenFactor;
+pub use prior::PriorFactor;
+
+use crate::error::{input, Result};
+use crate::se2::{vinv_diag, vinv_diag_derivative};
+use crate::values::{Key, Values};
+
+/// One residual block. `jacobians` is filled key by key, each block row-major
+/// `residual_dim x key.dim()`, laid out in the order of `keys()`.
+pub trait Factor: Send + Sync + std::fmt::Debug {
+    fn keys(&self) -> &[Key];
+    fn residual_dim(&self) -> usize;
+    /// Whitened residual only.
+    fn residual(&self, values: &Values, r: &mut [f64]);
+    /// Whitened residual and Jacobians.
+    fn linearize(&self, values: &Values, r: &mut [f64], jacobians: &mut [f64]);
+    /// `|r|^2` (the factor's chi2 contribution).
+    fn chi2(&self, values: &Values) -> f64 {
+        let mut r = [0.0; 16];
+        let d = self.residual_dim();
+        if d <= r.len() {
+            self.residual(values, &mut r[..d]);
+            r[..d].iter().map(|v| v * v).sum()
+        } else {
+            let mut r = vec![0.0; d];
+            self.residual(values, &mut r);
+            r.iter().map(|v| v * v).sum()
+        }
+    }
+}
+
+/// Upper Cholesky factor `U` of a 3x3 information matrix (`Omega = U^T U`), so that the whitened
+/// residual is `U r`. Fails with a clear message when Omega is not symmetric positive definite.
+pub fn sqrt_information(omega: &[[f64; 3]; 3]) -> Result<[[f64; 3]; 3]> {
+    for (i, row) in omega.iter().enumerate() {
+        for (j, v) in row.iter().enumerate() {
+            if !v.is_finite() {
+                return input(format!("information matrix entry ({i}, {j}) is {v}; use finite numbers"));
+            }
+            let w = omega[j][i];
+            if (v - w).abs() > 1e-9 * (1.0 + v.abs().max(w.abs())) {
+                return input(format!(
+                    "information matrix is not symmetric ({i},{j})={v} vs ({j},{i})={w}; pass a symmetric matrix"
+                ));
+            }
+        }
+    }
+    // Cholesky Omega = L L^T, then U = L^T.
+    let mut l = [[0.0f64; 3]; 3];
+    for i in 0..3 {
+        for j in 0..=i {
+            let mut s = omega[i][j];
+            for k in 0..j {
+                s -= l[i][k] * l[j][k];
+            }
+            if i == j {
+                if s <= 0.0 || !s.is_finite() {
+                    return input(
+                        "information matrix is not positive definite; give each edge an SPD information matrix",
+                    );
+                }
+                l[i][i] = s.sqrt();
+            } else {
+                l[i][j] = s / l[j][j];
+            }
+        }
+    }
+    let mut u = [[0.0f64; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            u[i][j] = l[j][i];
+        }
+    }
+    Ok(u)
+}
+
+/// `U r` for upper-triangular U.
+#[inline]
+pub(crate) fn whiten3(u: &[[f64; 3]; 3], r: [f64; 3]) -> [f64; 3] {
+    [
+        u[0][0] * r[0] + u[0][1] * r[1] + u[0][2] * r[2],
+        u[1][1] * r[1] + u[1][2] * r[2],
+        u[2][2] * r[2],
+    ]
+}
+
+/// Writes `U J` (J a row-major 3x3) into `out` (row-major 3x3).
+#[inline]
+pub(crate) fn whiten3x3(u: &[[f64; 3]; 3], j: &[[f64; 3]; 3], out: &mut [f64]) {
+    for col in 0..3 {
+        let c = whiten3(u, [j[0][col], j[1][col], j[2][col]]);
+        out[col] = c[0];
+        out[3 + col] = c[1];
+        out[6 + col] = c[2];
+    }
+}
+
+/// The SE(2) error `e = Log(E)` of a relative pose `E` given as its translation `t` and wrapped
+/// angle `theta`, with the derivative pieces every SE(2) residual needs:
+/// `r_t = V(theta)^-1 t`, `dr_t/dt = V^-1`, `dr_t/dtheta = w = a'(theta) t - S t / 2`.
+pub(crate) struct SE2Log {
+    pub r: [f64; 3],
+    /// `V^-1 = [[a, h], [-h, a]]` with `h = theta/2`.
+    pub a: f64,
+    pub h: f64,
+    pub w: [f64; 2],
+}
+
+impl SE2Log {
+    #[inline]
+    pub fn new(t: [f64; 2], theta: f64) -> Self {
+        let a = vinv_diag(theta);
+        let h = 0.5 * theta;
+        let da = vinv_diag_derivative(theta);
+        Self {
+            r: [a * t[0] + h * t[1], -h * t[0] + a * t[1], theta],
+            a,
+            h,
+            w: [da * t[0] + 0.5 * t[1], da * t[1] - 0.5 * t[0]],
+        }
+    }
+
+    /// `V^-1 M` for a 2x2 M given by columns.
+    #[inline]
+    pub fn vinv_times(&self, m: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
+        // m is [row][col]
+        let (a, h) = (self.a, self.h);
+        [
+            [a * m[0][0] + h * m[1][0], a * m[0][1] + h * m[1][1]],
+            [-h * m[0][0] + a * m[1][0], -h * m[0][1] + a * m[1][1]],
+        ]
+    }
+
+    #[inline]
+    pub fn vinv_vec(&self, v: [f64; 2]) -> [f64; 2] {
+        [self.a * v[0] + self.h * v[1], -self.h * v[0] + self.a * v[1]]
+    }
+}
+
+/// Checks that every key of a new factor names an existing variable.
+pub(crate) fn check_keys(keys: &[Key], values: &Values) -> Result<()> {
+    for &k in keys {
+        if !values.contains(k) {
+            return input(format!("factor refers to {k:?}, which does not exist"));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+pub(crate) mod testing {
+    //! Central-difference Jacobian checks shared by every factor's tests.
+    use super::Factor;
+    use crate::values::Values;
+
+    pub fn check_jacobians(f: &dyn Factor, values: &Values, rtol: f64, atol: f64) {
+        let d = f.residual_dim();
+        let total: usize = f.keys().iter().map(|k| k.dim()).sum();
+        let mut r = vec![0.0; d];
+        let mut jac = vec![0.0; d * total];
+        f.linearize(values, &mut r, &mut jac);
+        let mut r_only = vec![0.0; d];
+        f.residual(values, &mut r_only);
+        for (a, b) in r.iter().zip(r_only.iter()) {
+            assert!((a - b).abs() <= 1e-14 * (1.0 + a.abs()), "residual() and linearize() disagree");
+        }
+        let h = 1e-6;
+        let mut offset = 0;
+        for &key in f.keys() {
+            let kd = key.dim();
+            for c in 0..kd {
+                let mut plus = values.clone();
+                let mut minus = values.clone();
+                let mut delta = vec![0.0; kd];
+                delta[c] = h;
+                plus.retract(key, &delta);
+                delta[c] = -h;
+                minus.retract(key, &delta);
+                let mut rp = vec![0.0; d];
+                let mut rm = vec![0.0; d];
+                f.residual(&plus, &mut rp);
+                f.residual(&minus, &mut rm);
+                for row in 0..d {
+                    let fd = (rp[row] - rm[row]) / (2.0 * h);
+                    let an = jac[offset + row * kd + c];
+                    assert!(
+                        (fd - an).abs() <= atol + rtol * fd.abs().max(an.abs()),
+                        "{key:?} d r[{row}] / d delta[{c}]: analytic {an} vs numeric {fd}"
+                    );
+                }
+            }
+            offset += d * kd;
+        }
+    }
+}
