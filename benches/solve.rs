@@ -39,7 +39,9 @@ pub fn load_g2o(path: &Path) -> Option<(FactorGraph, Values)> {
 }
 
 fn dataset(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/datasets/pose_graphs").join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/datasets/pose_graphs")
+        .join(name)
 }
 
 fn bench_solves(c: &mut Criterion) {
@@ -54,14 +56,21 @@ fn bench_solves(c: &mut Criterion) {
         group.bench_function(format!("lm_from_initial_guess/{name}"), |b| {
             b.iter(|| {
                 let mut v = initial.clone();
-                optimize(&mut graph, &mut v, &params).map(|r| r.final_chi2).unwrap_or(f64::NAN)
+                optimize(&mut graph, &mut v, &params)
+                    .map(|r| r.final_chi2)
+                    .unwrap_or(f64::NAN)
             })
         });
-        let one = SolverParams { max_iterations: 1, ..SolverParams::default() };
+        let one = SolverParams {
+            max_iterations: 1,
+            ..SolverParams::default()
+        };
         group.bench_function(format!("one_iteration/{name}"), |b| {
             b.iter(|| {
                 let mut v = initial.clone();
-                optimize(&mut graph, &mut v, &one).map(|r| r.final_chi2).unwrap_or(f64::NAN)
+                optimize(&mut graph, &mut v, &one)
+                    .map(|r| r.final_chi2)
+                    .unwrap_or(f64::NAN)
             })
         });
     }

@@ -28,7 +28,9 @@ impl FactorGraph {
         }
         let fixed = match anchor {
             Some(a) if a >= num_poses => {
-                return input(format!("anchor pose {a} does not exist (the graph has {num_poses} poses)"))
+                return input(format!(
+                    "anchor pose {a} does not exist (the graph has {num_poses} poses)"
+                ))
             }
             Some(a) => vec![Key::Pose(a)],
             None => Vec::new(),
@@ -58,7 +60,8 @@ impl FactorGraph {
             return input("edges, measurements and information must have the same length");
         }
         g.factors.reserve(edges.len());
-        for (k, ((&(i, j), z), info)) in edges.iter().zip(measurements).zip(information).enumerate() {
+        for (k, ((&(i, j), z), info)) in edges.iter().zip(measurements).zip(information).enumerate()
+        {
             if i >= num_poses || j >= num_poses {
                 return input(format!(
                     "edge {k} ({i} -> {j}) refers to a pose that does not exist (the graph has {num_poses} poses)"
@@ -82,7 +85,9 @@ impl FactorGraph {
     pub fn add_between(&mut self, f: BetweenFactor) -> Result<()> {
         let (i, j) = f.indices();
         if i >= self.num_poses || j >= self.num_poses {
-            return input(format!("edge {i} -> {j} refers to a pose that does not exist"));
+            return input(format!(
+                "edge {i} -> {j} refers to a pose that does not exist"
+            ));
         }
         self.push(Box::new(f), false);
         Ok(())
@@ -163,12 +168,22 @@ impl FactorGraph {
             ));
         }
         if values.lines.len() != self.num_lines {
-            return input(format!("expected {} lines, got {}", self.num_lines, values.lines.len()));
+            return input(format!(
+                "expected {} lines, got {}",
+                self.num_lines,
+                values.lines.len()
+            ));
         }
-        if let Some((i, p)) =
-            values.poses.iter().enumerate().find(|(_, p)| !(p.x.is_finite() && p.y.is_finite() && p.theta.is_finite()))
+        if let Some((i, p)) = values
+            .poses
+            .iter()
+            .enumerate()
+            .find(|(_, p)| !(p.x.is_finite() && p.y.is_finite() && p.theta.is_finite()))
         {
-            return input(format!("pose {i} is not finite ({}, {}, {}); give finite initial values", p.x, p.y, p.theta));
+            return input(format!(
+                "pose {i} is not finite ({}, {}, {}); give finite initial values",
+                p.x, p.y, p.theta
+            ));
         }
         Ok(())
     }
@@ -225,7 +240,13 @@ impl FactorGraph {
         let names: Vec<String> = loose
             .iter()
             .take(5)
-            .map(|&v| if v < self.num_poses { format!("pose {v}") } else { format!("line {}", v - self.num_poses) })
+            .map(|&v| {
+                if v < self.num_poses {
+                    format!("pose {v}")
+                } else {
+                    format!("line {}", v - self.num_poses)
+                }
+            })
             .collect();
         let anchor = match self.fixed.first() {
             Some(Key::Pose(a)) => format!("the anchored pose {a}"),
@@ -243,11 +264,14 @@ impl FactorGraph {
     /// first use after any structural change and reused afterwards.
     pub(crate) fn pattern(&mut self) -> Result<&mut SparsityPattern> {
         if self.pattern.is_none() {
-            let p = SparsityPattern::new(self.num_poses, self.num_lines, &self.fixed, &self.factors)?;
+            let p =
+                SparsityPattern::new(self.num_poses, self.num_lines, &self.fixed, &self.factors)?;
             self.analyses += 1;
             self.pattern = Some(p);
         }
-        self.pattern.as_mut().ok_or_else(|| HitlError::Solver("internal: no sparsity pattern".into()))
+        self.pattern
+            .as_mut()
+            .ok_or_else(|| HitlError::Solver("internal: no sparsity pattern".into()))
     }
 
     /// Splits the borrow so the solver can read factors while writing into the pattern.

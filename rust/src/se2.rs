@@ -85,10 +85,18 @@ impl Pose2 {
     /// A pose; theta is wrapped to (-pi, pi].
     #[inline]
     pub fn new(x: f64, y: f64, theta: f64) -> Self {
-        Self { x, y, theta: wrap_angle(theta) }
+        Self {
+            x,
+            y,
+            theta: wrap_angle(theta),
+        }
     }
 
-    pub const IDENTITY: Pose2 = Pose2 { x: 0.0, y: 0.0, theta: 0.0 };
+    pub const IDENTITY: Pose2 = Pose2 {
+        x: 0.0,
+        y: 0.0,
+        theta: 0.0,
+    };
 
     #[inline]
     pub fn from_array(v: [f64; 3]) -> Self {
@@ -151,7 +159,11 @@ impl Pose2 {
     pub fn log(self) -> [f64; 3] {
         let a = vinv_diag(self.theta);
         let h = 0.5 * self.theta;
-        [a * self.x + h * self.y, -h * self.x + a * self.y, self.theta]
+        [
+            a * self.x + h * self.y,
+            -h * self.x + a * self.y,
+            self.theta,
+        ]
     }
 
     /// The solver's chart: `self * Pose2(delta)` (GTSAM's default Pose2 retract). Its derivative at
@@ -185,7 +197,9 @@ mod tests {
         // A fixed pseudo-random set (LCG) plus the edge angles, so failures are reproducible.
         let mut state: u64 = 0x2545_f491_4f6c_dd1d;
         let mut next = || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
         };
         let mut out: Vec<Pose2> = THETAS.iter().map(|&t| Pose2::new(0.7, -1.3, t)).collect();
@@ -215,8 +229,16 @@ mod tests {
             let b = ps[(i * 7 + 3) % ps.len()];
             assert!(close(a.compose(a.inverse()).to_array(), [0.0; 3], 1e-12));
             assert!(close(a.inverse().compose(a).to_array(), [0.0; 3], 1e-12));
-            assert!(close(a.compose(a.between(b)).to_array(), b.to_array(), 1e-12));
-            assert!(close(a.between(b).to_array(), a.inverse().compose(b).to_array(), 1e-12));
+            assert!(close(
+                a.compose(a.between(b)).to_array(),
+                b.to_array(),
+                1e-12
+            ));
+            assert!(close(
+                a.between(b).to_array(),
+                a.inverse().compose(b).to_array(),
+                1e-12
+            ));
             assert!(close(a.retract(a.local(b)).to_array(), b.to_array(), 1e-12));
             assert!(close(Pose2::exp(a.log()).to_array(), a.to_array(), 1e-9));
             let c = ps[(i * 13 + 5) % ps.len()];

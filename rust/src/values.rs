@@ -37,14 +37,19 @@ pub struct Values {
 
 impl Values {
     pub fn from_poses(poses: Vec<Pose2>) -> Self {
-        Self { poses, lines: Vec::new() }
+        Self {
+            poses,
+            lines: Vec::new(),
+        }
     }
 
     /// `x (+) delta` for one variable; `delta.len() == key.dim()`.
     #[inline]
     pub fn retract(&mut self, key: Key, delta: &[f64]) {
         match key {
-            Key::Pose(i) => self.poses[i] = self.poses[i].compose(Pose2::exp([delta[0], delta[1], delta[2]])),
+            Key::Pose(i) => {
+                self.poses[i] = self.poses[i].compose(Pose2::exp([delta[0], delta[1], delta[2]]))
+            }
             Key::Line(i) => {
                 let l = &mut self.lines[i];
                 l.phi = wrap_angle(l.phi + delta[0]);

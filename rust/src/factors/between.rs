@@ -32,12 +32,22 @@ impl BetweenFactor {
             return input(format!("edge {i} -> {j} joins a pose to itself; remove it"));
         }
         if !(measured.x.is_finite() && measured.y.is_finite() && measured.theta.is_finite()) {
-            return input(format!("edge {i} -> {j} has a non-finite measurement {measured:?}"));
+            return input(format!(
+                "edge {i} -> {j} has a non-finite measurement {measured:?}"
+            ));
         }
         let sqrt_info = sqrt_information(information)
             .map_err(|e| crate::error::HitlError::Input(format!("edge {i} -> {j}: {e}")))?;
         let (cz, sz) = measured.cos_sin();
-        Ok(Self { keys: [Key::Pose(i), Key::Pose(j)], i, j, measured, cz, sz, sqrt_info })
+        Ok(Self {
+            keys: [Key::Pose(i), Key::Pose(j)],
+            i,
+            j,
+            measured,
+            cz,
+            sz,
+            sqrt_info,
+        })
     }
 
     pub fn measured(&self) -> Pose2 {
@@ -60,7 +70,11 @@ impl BetweenFactor {
         let xj = values.poses[self.j];
         let (ci, si) = xi.cos_sin();
         let t_b = rotate_inv(ci, si, [xj.x - xi.x, xj.y - xi.y]);
-        let t_e = rotate_inv(self.cz, self.sz, [t_b[0] - self.measured.x, t_b[1] - self.measured.y]);
+        let t_e = rotate_inv(
+            self.cz,
+            self.sz,
+            [t_b[0] - self.measured.x, t_b[1] - self.measured.y],
+        );
         let theta_e = wrap_angle(xj.theta - xi.theta - self.measured.theta);
         (t_b, t_e, theta_e)
     }
@@ -77,18 +91,20 @@ impl Factor for BetweenFactor {
 
     fn residual(&self, values: &Values, r: &mut [f64]) {
         let (_, t_e, theta_e) = self.error_parts(values);
-        let log = SE2Log::new(t_e, theta_e);
-        r.copy_from_slice(&whiten3(&self.sqrt_info, log.r));
+        r.copy_from_slice(&whiten3(&self.sqrt_info, SE2Log::residual(t_e, theta_e)));
     }
 
     fn linearize(&self, values: &Values, r: &mut [f64], jacobians: &mut [f64]) {
         let (t_b, t_e, theta_e) = self.error_parts(values);
-        let log = SE2Log::new(t_e, theta_e);
+        let (log, ce, se) = SE2Log::new(t_e, theta_e);
         r.copy_from_slice(&whiten3(&self.sqrt_info, log.r));
 
-        let (ce, se) = (theta_e.cos(), theta_e.sin());
         let vr = log.vinv_times([[ce, -se], [se, ce]]);
-        let jj = [[vr[0][0], vr[0][1], log.w[0]], [vr[1][0], vr[1][1], log.w[1]], [0.0, 0.0, 1.0]];
+        let jj = [
+            [vr[0][0], vr[0][1], log.w[0]],
+            [vr[1][0], vr[1][1], log.w[1]],
+            [0.0, 0.0, 1.0],
+        ];
 
         let (cz, sz) = (self.cz, self.sz);
         let vrz = log.vinv_times([[cz, sz], [-sz, cz]]);
@@ -140,9 +156,13 @@ mod tests {
     #[test]
     fn whitening_gives_r_omega_r() {
         let z = Pose2::new(0.5, -0.2, 0.7);
-        let values = Values::from_poses(vec![Pose2::new(0.1, 0.2, 0.3), Pose2::new(1.0, 0.5, -0.4)]);
+        let values =
+            Values::from_poses(vec![Pose2::new(0.1, 0.2, 0.3), Pose2::new(1.0, 0.5, -0.4)]);
         let f = BetweenFactor::new(0, 1, z, &info()).unwrap();
-        let e = z.inverse().compose(values.poses[0].between(values.poses[1])).log();
+        let e = z
+            .inverse()
+            .compose(values.poses[0].between(values.poses[1]))
+            .log();
         let o = info();
         let mut quad = 0.0;
         for a in 0..3 {
@@ -186,10 +206,23 @@ mod tests {
         assert!(err.to_string().contains("positive definite"), "{err}");
         bad = info();
         bad[0][1] = 7.0;
-        assert!(BetweenFactor::new(0, 1, z, &bad).unwrap_err().to_string().contains("symmetric"));
+        assert!(BetweenFactor::new(0, 1, z, &bad)
+            .unwrap_err()
+            .to_string()
+            .contains("symmetric"));
         bad = info();
         bad[1][1] = f64::NAN;
         assert!(BetweenFactor::new(0, 1, z, &bad).is_err());
-        assert!(BetweenFactor::new(0, 1, Pose2 { x: f64::INFINITY, y: 0.0, theta: 0.0 }, &info()).is_err());
+        assert!(BetweenFactor::new(
+            0,
+            1,
+            Pose2 {
+                x: f64::INFINITY,
+                y: 0.0,
+                theta: 0.0
+            },
+            &info()
+        )
+        .is_err());
     }
 }

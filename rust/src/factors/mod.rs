@@ -42,7 +42,9 @@ pub fn sqrt_information(omega: &[[f64; 3]; 3]) -> Result<[[f64; 3]; 3]> {
     for (i, row) in omega.iter().enumerate() {
         for (j, v) in row.iter().enumerate() {
             if !v.is_finite() {
-                return input(format!("information matrix entry ({i}, {j}) is {v}; use finite numbers"));
+                return input(format!(
+                    "information matrix entry ({i}, {j}) is {v}; use finite numbers"
+                ));
             }
             let w = omega[j][i];
             if (v - w).abs() > 1e-9 * (1.0 + v.abs().max(w.abs())) {
@@ -114,17 +116,33 @@ pub(crate) struct SE2Log {
 }
 
 impl SE2Log {
+    /// The residual alone, `Log(E)`, without derivative pieces (used for trial costs).
     #[inline]
-    pub fn new(t: [f64; 2], theta: f64) -> Self {
+    pub fn residual(t: [f64; 2], theta: f64) -> [f64; 3] {
         let a = vinv_diag(theta);
         let h = 0.5 * theta;
-        let da = vinv_diag_derivative(theta);
-        Self {
+        [a * t[0] + h * t[1], -h * t[0] + a * t[1], theta]
+    }
+
+    /// The residual and the derivative pieces; also returns `(cos theta, sin theta)`, all from a
+    /// single `sin_cos(theta / 2)`.
+    #[inline]
+    pub fn new(t: [f64; 2], theta: f64) -> (Self, f64, f64) {
+        let h = 0.5 * theta;
+        let (sh, ch) = h.sin_cos();
+        let (c, s) = (1.0 - 2.0 * sh * sh, 2.0 * sh * ch);
+        let (a, da) = if theta.abs() < 1e-2 {
+            (vinv_diag(theta), vinv_diag_derivative(theta))
+        } else {
+            (h * ch / sh, (s - theta) / (4.0 * sh * sh))
+        };
+        let log = Self {
             r: [a * t[0] + h * t[1], -h * t[0] + a * t[1], theta],
             a,
             h,
             w: [da * t[0] + 0.5 * t[1], da * t[1] - 0.5 * t[0]],
-        }
+        };
+        (log, c, s)
     }
 
     /// `V^-1 M` for a 2x2 M given by columns.
@@ -140,7 +158,10 @@ impl SE2Log {
 
     #[inline]
     pub fn vinv_vec(&self, v: [f64; 2]) -> [f64; 2] {
-        [self.a * v[0] + self.h * v[1], -self.h * v[0] + self.a * v[1]]
+        [
+            self.a * v[0] + self.h * v[1],
+            -self.h * v[0] + self.a * v[1],
+        ]
     }
 }
 
@@ -169,7 +190,10 @@ pub(crate) mod testing {
         let mut r_only = vec![0.0; d];
         f.residual(values, &mut r_only);
         for (a, b) in r.iter().zip(r_only.iter()) {
-            assert!((a - b).abs() <= 1e-14 * (1.0 + a.abs()), "residual() and linearize() disagree");
+            assert!(
+                (a - b).abs() <= 1e-14 * (1.0 + a.abs()),
+                "residual() and linearize() disagree"
+            );
         }
         let h = 1e-6;
         let mut offset = 0;

@@ -19,12 +19,21 @@ pub struct PriorFactor {
 impl PriorFactor {
     pub fn new(i: usize, measured: Pose2, information: &[[f64; 3]; 3]) -> Result<Self> {
         if !(measured.x.is_finite() && measured.y.is_finite() && measured.theta.is_finite()) {
-            return input(format!("prior on pose {i} has a non-finite value {measured:?}"));
+            return input(format!(
+                "prior on pose {i} has a non-finite value {measured:?}"
+            ));
         }
         let sqrt_info = sqrt_information(information)
             .map_err(|e| crate::error::HitlError::Input(format!("prior on pose {i}: {e}")))?;
         let (cz, sz) = measured.cos_sin();
-        Ok(Self { keys: [Key::Pose(i)], i, measured, cz, sz, sqrt_info })
+        Ok(Self {
+            keys: [Key::Pose(i)],
+            i,
+            measured,
+            cz,
+            sz,
+            sqrt_info,
+        })
     }
 
     pub fn index(&self) -> usize {
@@ -38,7 +47,11 @@ impl PriorFactor {
     #[inline]
     fn error_parts(&self, values: &Values) -> ([f64; 2], f64) {
         let x = values.poses[self.i];
-        let t_e = rotate_inv(self.cz, self.sz, [x.x - self.measured.x, x.y - self.measured.y]);
+        let t_e = rotate_inv(
+            self.cz,
+            self.sz,
+            [x.x - self.measured.x, x.y - self.measured.y],
+        );
         (t_e, wrap_angle(x.theta - self.measured.theta))
     }
 }
@@ -54,16 +67,19 @@ impl Factor for PriorFactor {
 
     fn residual(&self, values: &Values, r: &mut [f64]) {
         let (t_e, theta_e) = self.error_parts(values);
-        r.copy_from_slice(&whiten3(&self.sqrt_info, SE2Log::new(t_e, theta_e).r));
+        r.copy_from_slice(&whiten3(&self.sqrt_info, SE2Log::residual(t_e, theta_e)));
     }
 
     fn linearize(&self, values: &Values, r: &mut [f64], jacobians: &mut [f64]) {
         let (t_e, theta_e) = self.error_parts(values);
-        let log = SE2Log::new(t_e, theta_e);
+        let (log, ce, se) = SE2Log::new(t_e, theta_e);
         r.copy_from_slice(&whiten3(&self.sqrt_info, log.r));
-        let (ce, se) = (theta_e.cos(), theta_e.sin());
         let vr = log.vinv_times([[ce, -se], [se, ce]]);
-        let j = [[vr[0][0], vr[0][1], log.w[0]], [vr[1][0], vr[1][1], log.w[1]], [0.0, 0.0, 1.0]];
+        let j = [
+            [vr[0][0], vr[0][1], log.w[0]],
+            [vr[1][0], vr[1][1], log.w[1]],
+            [0.0, 0.0, 1.0],
+        ];
         whiten3x3(&self.sqrt_info, &j, &mut jacobians[..9]);
     }
 }
@@ -78,7 +94,8 @@ mod tests {
     fn residual_is_log_of_error() {
         let z = Pose2::new(1.0, -2.0, 2.9);
         let x = Pose2::new(0.5, 0.5, -3.0);
-        let f = PriorFactor::new(0, z, &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]).unwrap();
+        let f =
+            PriorFactor::new(0, z, &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]).unwrap();
         let mut r = [0.0; 3];
         f.residual(&Values::from_poses(vec![x]), &mut r);
         let e = z.between(x).log();
@@ -98,7 +115,12 @@ mod tests {
                     continue;
                 }
                 let f = PriorFactor::new(0, Pose2::new(0.2, 0.1, tz), &info).unwrap();
-                check_jacobians(&f, &Values::from_poses(vec![Pose2::new(1.3, -0.4, t)]), 1e-6, 1e-7);
+                check_jacobians(
+                    &f,
+                    &Values::from_poses(vec![Pose2::new(1.3, -0.4, t)]),
+                    1e-6,
+                    1e-7,
+                );
             }
         }
     }

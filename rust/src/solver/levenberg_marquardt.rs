@@ -47,9 +47,11 @@ impl Default for SolverParams {
             error_tolerance: 0.0,
             gradient_tolerance: 1e-12,
             step_tolerance: 1e-12,
+            // As GTSAM's defaults: an almost-Gauss-Newton first step, identity damping. Marquardt's
+            // diag(H) scaling took twice the iterations on M3500 (measured).
             lambda_initial: 1e-5,
             lambda_max: 1e16,
-            diagonal_damping: true,
+            diagonal_damping: false,
         }
     }
 }
@@ -60,7 +62,9 @@ impl SolverParams {
             if v.is_finite() && v >= 0.0 {
                 Ok(())
             } else {
-                Err(HitlError::Input(format!("{name} must be a finite number >= 0, got {v}")))
+                Err(HitlError::Input(format!(
+                    "{name} must be a finite number >= 0, got {v}"
+                )))
             }
         };
         finite_nonneg("relative_tolerance", self.relative_tolerance)?;
@@ -69,10 +73,15 @@ impl SolverParams {
         finite_nonneg("gradient_tolerance", self.gradient_tolerance)?;
         finite_nonneg("step_tolerance", self.step_tolerance)?;
         if !(self.lambda_initial.is_finite() && self.lambda_initial > 0.0) {
-            return Err(HitlError::Input(format!("lambda_initial must be > 0, got {}", self.lambda_initial)));
+            return Err(HitlError::Input(format!(
+                "lambda_initial must be > 0, got {}",
+                self.lambda_initial
+            )));
         }
-        if !(self.lambda_max > self.lambda_initial) {
-            return Err(HitlError::Input("lambda_max must exceed lambda_initial".into()));
+        if self.lambda_max.is_nan() || self.lambda_max <= self.lambda_initial {
+            return Err(HitlError::Input(
+                "lambda_max must exceed lambda_initial".into(),
+            ));
         }
         Ok(())
     }
@@ -97,7 +106,11 @@ fn norm(v: &[f64]) -> f64 {
 }
 
 /// Minimizes the graph's chi2 starting from `values` (updated in place).
-pub fn optimize(graph: &mut FactorGraph, values: &mut Values, params: &SolverParams) -> Result<SolveReport> {
+pub fn optimize(
+    graph: &mut FactorGraph,
+    values: &mut Values,
+    params: &SolverParams,
+) -> Result<SolveReport> {
     params.validate()?;
     graph.check_values(values)?;
     let start = Instant::now();
@@ -118,7 +131,9 @@ pub fn optimize(graph: &mut FactorGraph, values: &mut Values, params: &SolverPar
     let mut chi2 = pattern.linearize(factors, values);
     time_linearize += t.elapsed().as_secs_f64();
     if !chi2.is_finite() {
-        return Err(HitlError::Input("the initial cost is not finite; check the initial guess and measurements".into()));
+        return Err(HitlError::Input(
+            "the initial cost is not finite; check the initial guess and measurements".into(),
+        ));
     }
     let initial_chi2 = chi2;
     let mut iterations = 0;
@@ -167,7 +182,9 @@ pub fn optimize(graph: &mut FactorGraph, values: &mut Values, params: &SolverPar
                 let old = chi2;
                 chi2 = new_chi2;
                 if !chi2.is_finite() {
-                    return Err(HitlError::Solver("Gauss-Newton diverged (non-finite cost); try method='lm'".into()));
+                    return Err(HitlError::Solver(
+                        "Gauss-Newton diverged (non-finite cost); try method='lm'".into(),
+                    ));
                 }
                 if let Some(t) = decrease_converged(params, old, new_chi2) {
                     termination = t;
@@ -186,7 +203,8 @@ pub fn optimize(graph: &mut FactorGraph, values: &mut Values, params: &SolverPar
                     // Decrease predicted by the linear model |r + J d|^2: -2 g.d - d^T H d, which
                     // with (H + lambda D) d = -g equals -g.d + lambda d^T D d (both terms >= 0).
                     let gd: f64 = delta.iter().zip(&pattern.g).map(|(d, g)| d * g).sum();
-                    let predicted = -gd + lambda * pattern.damping_quadratic(&delta, params.diagonal_damping);
+                    let predicted =
+                        -gd + lambda * pattern.damping_quadratic(&delta, params.diagonal_damping);
                     trial.clone_from(values);
                     pattern.retract(&mut trial, &delta);
                     let t = Instant::now();
@@ -194,7 +212,11 @@ pub fn optimize(graph: &mut FactorGraph, values: &mut Values, params: &SolverPar
                     time_linearize += t.elapsed().as_secs_f64();
                     let actual = chi2 - new_chi2;
                     if new_chi2.is_finite() && actual > 0.0 {
-                        let rho = if predicted > 0.0 { actual / predicted } else { 1.0 };
+                        let rho = if predicted > 0.0 {
+                            actual / predicted
+                        } else {
+                            1.0
+                        };
                         lambda *= f64::max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0).powi(3));
                         lambda = lambda.max(1e-20);
                         nu = 2.0;
@@ -213,19 +235,26 @@ pub fn optimize(graph: &mut FactorGraph, values: &mut Values, params: &SolverPar
                     std::mem::swap(values, &mut trial);
                     iterations += 1;
                     let old = chi2;
-                    let t = Instant::now();
-                    chi2 = pattern.linearize(factors, values);
-                    time_linearize += t.elapsed().as_secs_f64();
-                    max_grad = pattern.g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                    chi2 = new_chi2;
+                    // Convergence needs only chi2, so the last linearization is skipped.
                     if let Some(t) = decrease_converged(params, old, chi2) {
                         termination = t;
                         break 'outer;
                     }
-                    let scale = values.poses.iter().map(|p| p.x * p.x + p.y * p.y + p.theta * p.theta).sum::<f64>().sqrt();
+                    let scale = values
+                        .poses
+                        .iter()
+                        .map(|p| p.x * p.x + p.y * p.y + p.theta * p.theta)
+                        .sum::<f64>()
+                        .sqrt();
                     if step_norm <= params.step_tolerance * (scale + params.step_tolerance) {
                         termination = Termination::StepSize;
                         break 'outer;
                     }
+                    let t = Instant::now();
+                    pattern.linearize(factors, values);
+                    time_linearize += t.elapsed().as_secs_f64();
+                    max_grad = pattern.g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
                     break;
                 }
                 lambda *= nu;

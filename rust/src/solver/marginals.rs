@@ -8,11 +8,17 @@ use crate::values::{Key, Values};
 
 /// Covariance blocks (row-major `dim x dim`) of `keys` at `values`. A fixed variable has a zero
 /// covariance.
-pub fn marginal_covariances(graph: &mut FactorGraph, values: &Values, keys: &[Key]) -> Result<Vec<Vec<f64>>> {
+pub fn marginal_covariances(
+    graph: &mut FactorGraph,
+    values: &Values,
+    keys: &[Key],
+) -> Result<Vec<Vec<f64>>> {
     graph.check_values(values)?;
     for &k in keys {
         if !values.contains(k) {
-            return Err(HitlError::Input(format!("{k:?} does not exist; marginals need existing variables")));
+            return Err(HitlError::Input(format!(
+                "{k:?} does not exist; marginals need existing variables"
+            )));
         }
     }
     let (factors, pattern) = graph.parts()?;

@@ -10,10 +10,10 @@
 
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
-use faer::sparse::linalg::amd;
 use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, CholeskySymbolicParams, SymbolicCholesky, SymmetricOrdering,
 };
+use faer::sparse::linalg::{amd, SupernodalThreshold};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side, Spec};
 
@@ -22,6 +22,11 @@ use crate::factors::Factor;
 use crate::values::{Key, Values};
 
 const NO_BLOCK: usize = usize::MAX;
+/// Scalar size from which the supernodal Cholesky kernel is always used.
+const SUPERNODAL_MIN_DIM: usize = 3000;
+
+/// `(rows, cols, values, gradient, keys)`: the upper triangle of H and J^T r in natural order.
+pub type NaturalSystem = (Vec<usize>, Vec<usize>, Vec<f64>, Vec<f64>, Vec<Key>);
 
 pub struct SparsityPattern {
     /// Block of each pose / line (NO_BLOCK when fixed); blocks are in elimination order.
@@ -57,8 +62,12 @@ fn block_of(pose_block: &[usize], line_block: &[usize], key: Key) -> usize {
 }
 
 impl SparsityPattern {
-    pub fn new(num_poses: usize, num_lines: usize, fixed: &[Key], factors: &[Box<dyn Factor>]) -> Result<Self> {
-        let __t = std::time::Instant::now();
+    pub fn new(
+        num_poses: usize,
+        num_lines: usize,
+        fixed: &[Key],
+        factors: &[Box<dyn Factor>],
+    ) -> Result<Self> {
         // 1. Free variables, in natural order (poses, then lines).
         let mut natural_pose = vec![NO_BLOCK; num_poses];
         let mut natural_line = vec![NO_BLOCK; num_lines];
@@ -77,36 +86,45 @@ impl SparsityPattern {
         }
         let nb = keys.len();
         if nb == 0 {
-            return Err(HitlError::Input("every variable is fixed; there is nothing to optimize".into()));
+            return Err(HitlError::Input(
+                "every variable is fixed; there is nothing to optimize".into(),
+            ));
         }
 
-        // 2. Block adjacency (both triangles, no diagonal) for AMD.
-        let mut adj: Vec<Vec<usize>> = vec![Vec::new(); nb];
+        // 2. Block adjacency (both directions, no diagonal) as CSR, from one sorted pair list.
+        let mut pairs: Vec<(usize, usize)> = Vec::new();
+        let mut bs: Vec<usize> = Vec::new();
         for f in factors {
-            let bs: Vec<usize> = f
-                .keys()
-                .iter()
-                .map(|&k| block_of(&natural_pose, &natural_line, k))
-                .filter(|&b| b != NO_BLOCK)
-                .collect();
+            bs.clear();
+            bs.extend(
+                f.keys()
+                    .iter()
+                    .map(|&k| block_of(&natural_pose, &natural_line, k))
+                    .filter(|&b| b != NO_BLOCK),
+            );
             for (x, &a) in bs.iter().enumerate() {
                 for &b in &bs[x + 1..] {
-                    adj[a].push(b);
-                    adj[b].push(a);
+                    pairs.push((a, b));
+                    pairs.push((b, a));
                 }
             }
         }
-        for a in adj.iter_mut() {
-            a.sort_unstable();
-            a.dedup();
+        pairs.sort_unstable();
+        pairs.dedup();
+        let mut adj_ptr = vec![0usize; nb + 1];
+        for &(a, _) in &pairs {
+            adj_ptr[a + 1] += 1;
         }
-        let perm_fwd = if std::env::var("NOAMD").is_ok() { (0..nb).collect() } else { block_amd(&adj)? };
+        for b in 0..nb {
+            adj_ptr[b + 1] += adj_ptr[b];
+        }
+        let adj_idx: Vec<usize> = pairs.iter().map(|&(_, b)| b).collect();
+        let perm_fwd = block_amd(nb, &adj_ptr, &adj_idx)?;
         let mut perm_inv = vec![0usize; nb];
         for (new, &old) in perm_fwd.iter().enumerate() {
             perm_inv[old] = new;
         }
 
-        if std::env::var("PROF").is_ok() { eprintln!("// 3. Blocks {:?}", __t.elapsed()); }
         // 3. Blocks in elimination order.
         let mut pose_block = vec![NO_BLOCK; num_poses];
         let mut line_block = vec![NO_BLOCK; num_lines];
@@ -126,25 +144,30 @@ impl SparsityPattern {
             n += key.dim();
         }
 
-        if std::env::var("PROF").is_ok() { eprintln!("// 4. Upper- {:?}", __t.elapsed()); }
-        // 4. Upper-triangular scalar CSC: block column C holds block rows R <= C (sorted).
-        let mut upper: Vec<Vec<usize>> = vec![Vec::new(); nb];
-        for (old, nbrs) in adj.iter().enumerate() {
-            let c = perm_inv[old];
-            for &o in nbrs {
-                let r = perm_inv[o];
-                if r < c {
-                    upper[c].push(r);
-                }
-            }
+        // 4. Upper-triangular scalar CSC: block column C holds block rows R < C (sorted), then
+        //    the upper triangle of its own diagonal block. Every scalar column of C has the same
+        //    block rows, so `row_start[C][x]` (offset of the x-th block row within a column) is
+        //    shared by all of them.
+        let mut upper: Vec<(usize, usize)> = pairs
+            .iter()
+            .map(|&(a, b)| (perm_inv[a], perm_inv[b]))
+            .filter(|&(c, r)| r < c)
+            .collect();
+        upper.sort_unstable();
+        let mut upper_ptr = vec![0usize; nb + 1];
+        for &(c, _) in &upper {
+            upper_ptr[c + 1] += 1;
         }
+        for c in 0..nb {
+            upper_ptr[c + 1] += upper_ptr[c];
+        }
+        let upper_idx: Vec<usize> = upper.iter().map(|&(_, r)| r).collect();
         let mut col_ptr = Vec::with_capacity(n + 1);
         let mut row_idx = Vec::new();
         col_ptr.push(0);
-        for (c, rows) in upper.iter_mut().enumerate() {
-            rows.sort_unstable();
+        for c in 0..nb {
             for k in 0..block_dim[c] {
-                for &r in rows.iter() {
+                for &r in &upper_idx[upper_ptr[c]..upper_ptr[c + 1]] {
                     row_idx.extend(block_offset[r]..block_offset[r] + block_dim[r]);
                 }
                 row_idx.extend(block_offset[c]..=block_offset[c] + k);
@@ -152,14 +175,20 @@ impl SparsityPattern {
             }
         }
 
-        if std::env::var("PROF").is_ok() { eprintln!("// 5. Slots: {:?}", __t.elapsed()); }
         // 5. Slots: where each factor's Hessian blocks land.
-        let find = |col: usize, row: usize| -> Result<usize> {
-            let (lo, hi) = (col_ptr[col], col_ptr[col + 1]);
-            match row_idx[lo..hi].binary_search(&row) {
-                Ok(p) => Ok(lo + p),
-                Err(_) => Err(HitlError::Solver(format!("internal: entry ({row}, {col}) missing from the pattern"))),
+        let block_slot = |r: usize, c: usize, k: usize| -> Result<usize> {
+            let col = block_offset[c] + k;
+            if r == c {
+                return Ok(col_ptr[col + 1] - (k + 1));
             }
+            let rows = &upper_idx[upper_ptr[c]..upper_ptr[c + 1]];
+            let x = rows.binary_search(&r).map_err(|_| {
+                HitlError::Solver(format!(
+                    "internal: block ({r}, {c}) missing from the pattern"
+                ))
+            })?;
+            let before: usize = rows[..x].iter().map(|&b| block_dim[b]).sum();
+            Ok(col_ptr[col] + before)
         };
         let mut factor_slots = Vec::with_capacity(factors.len() + 1);
         let mut slots = Vec::new();
@@ -182,24 +211,32 @@ impl SparsityPattern {
                     }
                     let (r, c) = if bp <= bq { (bp, bq) } else { (bq, bp) };
                     for k in 0..block_dim[c] {
-                        slots.push(find(block_offset[c] + k, block_offset[r])?);
+                        slots.push(block_slot(r, c, k)?);
                     }
                 }
             }
         }
         factor_slots.push(slots.len());
 
-        if std::env::var("PROF").is_ok() { eprintln!("// 6. Symbol {:?}", __t.elapsed()); }
         // 6. Symbolic analysis, on the already-ordered pattern.
         let sym = SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
         let symbolic = factorize_symbolic_cholesky(
             sym,
             Side::Upper,
-            if std::env::var("SCALARAMD").is_ok() { SymmetricOrdering::Amd } else { SymmetricOrdering::Identity },
-            CholeskySymbolicParams { supernodal_flop_ratio_threshold: if std::env::var("FORCESN").is_ok() { faer::sparse::linalg::SupernodalThreshold::FORCE_SUPERNODAL } else if std::env::var("FORCESIMP").is_ok() { faer::sparse::linalg::SupernodalThreshold::FORCE_SIMPLICIAL } else { faer::sparse::linalg::SupernodalThreshold::AUTO }, supernodal_params: faer::sparse::linalg::SymbolicSupernodalParams { relax: Some(match std::env::var("RELAX").as_deref() { Ok("1") => &[(4, 1.0), (16, 0.5), (48, 0.05), (usize::MAX, 0.02)], Ok("2") => &[(8, 1.0), (32, 0.8), (96, 0.2), (usize::MAX, 0.1)], Ok("3") => &[(6, 1.0), (24, 0.6), (64, 0.1), (usize::MAX, 0.05)], _ => &[(4, 1.0), (16, 0.8), (48, 0.1), (usize::MAX, 0.05)] }) }, ..Default::default() },
+            SymmetricOrdering::Identity,
+            CholeskySymbolicParams {
+                // faer's flop-ratio heuristic picks the simplicial kernel for M3500-like graphs,
+                // but the supernodal one factorizes them ~15% faster (measured); tiny problems
+                // keep the heuristic.
+                supernodal_flop_ratio_threshold: if n >= SUPERNODAL_MIN_DIM {
+                    SupernodalThreshold::FORCE_SUPERNODAL
+                } else {
+                    SupernodalThreshold::AUTO
+                },
+                ..Default::default()
+            },
         )
         .map_err(|e| HitlError::Solver(format!("symbolic Cholesky analysis failed: {e:?}")))?;
-        if std::env::var("PROF").is_ok() { eprintln!("let req = St {:?}", __t.elapsed()); }
         let req = StackReq::any_of(&[
             symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Spec::default()),
             symbolic.solve_in_place_scratch::<f64>(3, Par::Seq),
@@ -263,6 +300,13 @@ impl SparsityPattern {
             f.linearize(values, &mut r[..d], &mut jac);
             chi2 += r[..d].iter().map(|v| v * v).sum::<f64>();
             let mut slot = self.factor_slots[fi];
+            if d == 3 && keys.len() == 2 && keys[0].dim() == 3 && keys[1].dim() == 3 {
+                // The pose-graph hot path (every relative-pose edge), with fixed sizes.
+                let b0 = block_of(&self.pose_block, &self.line_block, keys[0]);
+                let b1 = block_of(&self.pose_block, &self.line_block, keys[1]);
+                self.accumulate_pose_pair(&jac[..18], &r[..3], b0, b1, slot);
+                continue;
+            }
             let mut off_p = 0;
             for (p, &kp) in keys.iter().enumerate() {
                 let dp = kp.dim();
@@ -298,7 +342,11 @@ impl SparsityPattern {
                                 slot += dp;
                             } else {
                                 // Off-diagonal: rows from the lower-numbered block.
-                                let (jr, dr, jc, dc) = if bp < bq { (jp, dp, jq, dq) } else { (jq, dq, jp, dp) };
+                                let (jr, dr, jc, dc) = if bp < bq {
+                                    (jp, dp, jq, dq)
+                                } else {
+                                    (jq, dq, jp, dp)
+                                };
                                 for k in 0..dc {
                                     let base = self.slots[slot + k];
                                     for i in 0..dr {
@@ -321,6 +369,70 @@ impl SparsityPattern {
         chi2
     }
 
+    /// `accumulate` for a 3-row factor on two 3-dof blocks (either may be fixed). Slot order as
+    /// built in `new`: (0,0) diagonal, (0,1) off-diagonal, (1,1) diagonal, skipping fixed ones.
+    #[inline]
+    fn accumulate_pose_pair(
+        &mut self,
+        jac: &[f64],
+        r: &[f64],
+        b0: usize,
+        b1: usize,
+        mut slot: usize,
+    ) {
+        let j0: &[f64; 9] = jac[..9].try_into().unwrap_or(&[0.0; 9]);
+        let j1: &[f64; 9] = jac[9..18].try_into().unwrap_or(&[0.0; 9]);
+        let r: [f64; 3] = [r[0], r[1], r[2]];
+        let grad = |j: &[f64; 9]| -> [f64; 3] {
+            let mut out = [0.0; 3];
+            for (a, o) in out.iter_mut().enumerate() {
+                *o = j[a] * r[0] + j[3 + a] * r[1] + j[6 + a] * r[2];
+            }
+            out
+        };
+        // (J_a^T J_b)[i][k] = sum_row J_a[row][i] J_b[row][k]
+        let jtj = |ja: &[f64; 9], i: usize, jb: &[f64; 9], k: usize| -> f64 {
+            ja[i] * jb[k] + ja[3 + i] * jb[3 + k] + ja[6 + i] * jb[6 + k]
+        };
+        if b0 != NO_BLOCK {
+            let g0 = grad(j0);
+            let o = self.block_offset[b0];
+            for a in 0..3 {
+                self.g[o + a] += g0[a];
+            }
+            for k in 0..3 {
+                let base = self.slots[slot + k];
+                for i in 0..=k {
+                    self.h[base + i] += jtj(j0, i, j0, k);
+                }
+            }
+            slot += 3;
+            if b1 != NO_BLOCK {
+                let (jr, jc) = if b0 < b1 { (j0, j1) } else { (j1, j0) };
+                for k in 0..3 {
+                    let base = self.slots[slot + k];
+                    for i in 0..3 {
+                        self.h[base + i] += jtj(jr, i, jc, k);
+                    }
+                }
+                slot += 3;
+            }
+        }
+        if b1 != NO_BLOCK {
+            let g1 = grad(j1);
+            let o = self.block_offset[b1];
+            for a in 0..3 {
+                self.g[o + a] += g1[a];
+            }
+            for k in 0..3 {
+                let base = self.slots[slot + k];
+                for i in 0..=k {
+                    self.h[base + i] += jtj(j1, i, j1, k);
+                }
+            }
+        }
+    }
+
     /// Solves `(H + mu D) delta = -g` where `D = diag(H)` clamped to `[d_min, d_max]`
     /// (`diagonal = true`, Marquardt's scaling) or the identity. `mu = 0` is Gauss-Newton.
     /// Returns `Ok(false)` when the damped matrix is not numerically positive definite.
@@ -329,14 +441,24 @@ impl SparsityPattern {
         if mu > 0.0 {
             for k in 0..self.n {
                 let p = self.col_ptr[k + 1] - 1;
-                let d = if diagonal { self.h[p].clamp(1e-6, 1e32) } else { 1.0 };
+                let d = if diagonal {
+                    self.h[p].clamp(1e-6, 1e32)
+                } else {
+                    1.0
+                };
                 self.damped[p] += mu * d;
             }
         }
         for (x, g) in delta.iter_mut().zip(&self.g) {
             *x = -g;
         }
-        let sym = SymbolicSparseColMatRef::new_checked(self.n, self.n, &self.col_ptr, None, &self.row_idx);
+        let sym = SymbolicSparseColMatRef::new_checked(
+            self.n,
+            self.n,
+            &self.col_ptr,
+            None,
+            &self.row_idx,
+        );
         let a = SparseColMatRef::new(sym, &self.damped);
         let stack = MemStack::new(&mut self.mem);
         let llt = match self.symbolic.factorize_numeric_llt::<f64>(
@@ -362,7 +484,11 @@ impl SparsityPattern {
             .iter()
             .enumerate()
             .map(|(k, d)| {
-                let dk = if diagonal { self.h[self.col_ptr[k + 1] - 1].clamp(1e-6, 1e32) } else { 1.0 };
+                let dk = if diagonal {
+                    self.h[self.col_ptr[k + 1] - 1].clamp(1e-6, 1e32)
+                } else {
+                    1.0
+                };
                 dk * d * d
             })
             .sum()
@@ -371,7 +497,13 @@ impl SparsityPattern {
     /// Factorizes the undamped `H` and solves for `H^-1` columns of the given scalar offsets
     /// (marginal covariances). `cols` is `n x k` column-major, overwritten with the solutions.
     pub fn solve_undamped_columns(&mut self, cols: &mut [f64], k: usize) -> Result<()> {
-        let sym = SymbolicSparseColMatRef::new_checked(self.n, self.n, &self.col_ptr, None, &self.row_idx);
+        let sym = SymbolicSparseColMatRef::new_checked(
+            self.n,
+            self.n,
+            &self.col_ptr,
+            None,
+            &self.row_idx,
+        );
         let a = SparseColMatRef::new(sym, &self.h);
         let llt = self
             .symbolic
@@ -409,9 +541,13 @@ impl SparsityPattern {
 
     /// The upper triangle of H as (row, col, value) triplets in the NATURAL variable order
     /// (poses by index, then lines; fixed ones skipped), for cross-checks against SciPy.
-    pub fn upper_triplets_natural(&self) -> (Vec<usize>, Vec<usize>, Vec<f64>, Vec<f64>, Vec<Key>) {
-        let mut natural: Vec<(Key, usize)> =
-            self.block_key.iter().enumerate().map(|(b, &k)| (k, b)).collect();
+    pub fn upper_triplets_natural(&self) -> NaturalSystem {
+        let mut natural: Vec<(Key, usize)> = self
+            .block_key
+            .iter()
+            .enumerate()
+            .map(|(b, &k)| (k, b))
+            .collect();
         natural.sort_unstable_by_key(|&(k, _)| k);
         let mut new_offset = vec![0usize; self.block_key.len()];
         let mut o = 0;
@@ -438,7 +574,13 @@ impl SparsityPattern {
         for (k, &m) in scalar_map.iter().enumerate() {
             g[m] = self.g[k];
         }
-        (rows, cols, vals, g, natural.into_iter().map(|(k, _)| k).collect())
+        (
+            rows,
+            cols,
+            vals,
+            g,
+            natural.into_iter().map(|(k, _)| k).collect(),
+        )
     }
 }
 
@@ -452,15 +594,20 @@ impl std::fmt::Debug for SparsityPattern {
     }
 }
 
-/// AMD on the block graph; returns `perm_fwd` (new position -> old block).
-fn block_amd(adj: &[Vec<usize>]) -> Result<Vec<usize>> {
-    let nb = adj.len();
+/// AMD on the block graph (given as symmetric CSR without diagonal); returns `perm_fwd`
+/// (new position -> old block).
+fn block_amd(nb: usize, adj_ptr: &[usize], adj_idx: &[usize]) -> Result<Vec<usize>> {
     let mut col_ptr = Vec::with_capacity(nb + 1);
-    let mut row_idx = Vec::new();
+    let mut row_idx = Vec::with_capacity(adj_idx.len() / 2 + nb);
     col_ptr.push(0usize);
-    for (c, nbrs) in adj.iter().enumerate() {
+    for c in 0..nb {
         // Upper triangle plus the diagonal; AMD works on the pattern of A + A^T.
-        row_idx.extend(nbrs.iter().copied().filter(|&r| r < c));
+        row_idx.extend(
+            adj_idx[adj_ptr[c]..adj_ptr[c + 1]]
+                .iter()
+                .copied()
+                .filter(|&r| r < c),
+        );
         row_idx.push(c);
         col_ptr.push(row_idx.len());
     }
@@ -468,9 +615,16 @@ fn block_amd(adj: &[Vec<usize>]) -> Result<Vec<usize>> {
     let mut inv = vec![0usize; nb];
     let sym = SymbolicSparseColMatRef::new_checked(nb, nb, &col_ptr, None, &row_idx);
     let req = amd::order_scratch::<usize>(nb, row_idx.len());
-    let mut mem = MemBuffer::try_new(req).map_err(|_| HitlError::Solver("out of memory for AMD".into()))?;
-    amd::order(&mut fwd, &mut inv, sym, amd::Control::default(), MemStack::new(&mut mem))
-        .map_err(|e| HitlError::Solver(format!("fill-reducing ordering failed: {e:?}")))?;
+    let mut mem =
+        MemBuffer::try_new(req).map_err(|_| HitlError::Solver("out of memory for AMD".into()))?;
+    amd::order(
+        &mut fwd,
+        &mut inv,
+        sym,
+        amd::Control::default(),
+        MemStack::new(&mut mem),
+    )
+    .map_err(|e| HitlError::Solver(format!("fill-reducing ordering failed: {e:?}")))?;
     Ok(fwd)
 }
 
@@ -490,10 +644,14 @@ mod tests {
         }
         edges.retain(|&(a, b)| a != b);
         let info = [[50.0, 2.0, 1.0], [2.0, 40.0, -1.0], [1.0, -1.0, 300.0]];
-        let zs: Vec<[f64; 3]> =
-            edges.iter().map(|&(a, b)| [0.1 * (b as f64 - a as f64), 0.05 * a as f64 % 1.0, 0.3]).collect();
+        let zs: Vec<[f64; 3]> = edges
+            .iter()
+            .map(|&(a, b)| [0.1 * (b as f64 - a as f64), 0.05 * a as f64 % 1.0, 0.3])
+            .collect();
         let g = FactorGraph::from_edges(n, &edges, &zs, &vec![info; edges.len()], 0).unwrap();
-        let poses = (0..n).map(|i| Pose2::new(i as f64 * 0.3, (i as f64).sin(), 0.1 * i as f64)).collect();
+        let poses = (0..n)
+            .map(|i| Pose2::new(i as f64 * 0.3, (i as f64).sin(), 0.1 * i as f64))
+            .collect();
         (g, Values::from_poses(poses))
     }
 
@@ -521,9 +679,16 @@ mod tests {
                 let mut delta = vec![0.0; p.n];
                 assert!(p.solve_damped(mu, diag, &mut delta).unwrap());
                 let hd = mul_upper(p, &p.damped, &delta);
-                let err = hd.iter().zip(&p.g).map(|(a, b)| (a + b).abs()).fold(0.0, f64::max);
+                let err = hd
+                    .iter()
+                    .zip(&p.g)
+                    .map(|(a, b)| (a + b).abs())
+                    .fold(0.0, f64::max);
                 let scale = p.g.iter().map(|v| v.abs()).fold(0.0, f64::max);
-                assert!(err <= 1e-9 * scale, "n {n} mu {mu}: residual {err} (scale {scale})");
+                assert!(
+                    err <= 1e-9 * scale,
+                    "n {n} mu {mu}: residual {err} (scale {scale})"
+                );
             }
         }
     }
@@ -571,10 +736,18 @@ mod tests {
         }
         for a in 0..n {
             let ga: f64 = (0..m).map(|row| jac[row][a] * r0[row]).sum();
-            assert!((ga - p.g[a]).abs() < 1e-5 * (1.0 + ga.abs()), "g[{a}]: {} vs {ga}", p.g[a]);
+            assert!(
+                (ga - p.g[a]).abs() < 1e-5 * (1.0 + ga.abs()),
+                "g[{a}]: {} vs {ga}",
+                p.g[a]
+            );
             for b in 0..n {
                 let hab: f64 = (0..m).map(|row| jac[row][a] * jac[row][b]).sum();
-                assert!((hab - dense[a][b]).abs() < 1e-5 * (1.0 + hab.abs()), "H[{a}][{b}]: {} vs {hab}", dense[a][b]);
+                assert!(
+                    (hab - dense[a][b]).abs() < 1e-5 * (1.0 + hab.abs()),
+                    "H[{a}][{b}]: {} vs {hab}",
+                    dense[a][b]
+                );
             }
         }
     }

@@ -1,0 +1,477 @@
+//! The Python boundary, and the only module that knows about Python: `hitl_slam._core`.
+//!
+//! Arrays come in as read-only numpy views and results go out as numpy arrays that take over
+//! Rust's buffers (no copies). Solves run with the GIL released. Every error maps once to the
+//! package's exception classes (defined in `hitl_slam/errors.py`), and a panic is caught here
+//! and reported as an internal error instead of reaching the user as `PanicException`.
+
+use std::panic::{catch_unwind, AssertUnwindSafe};
+
+use numpy::ndarray::{Array1, Array2, Array3};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3,
+};
+use pyo3::exceptions::PyRuntimeError;
+use pyo3::prelude::*;
+use pyo3::types::PyType;
+
+use crate::error::HitlError;
+use crate::factors::{BetweenFactor, PriorFactor};
+use crate::graph::FactorGraph;
+use crate::se2::Pose2;
+use crate::solver::{self, IterationRecord, Method, SolveReport, SolverParams};
+use crate::values::{Key, Values};
+
+fn exception(py: Python<'_>, name: &str, msg: String) -> PyErr {
+    let class = py
+        .import("hitl_slam.errors")
+        .and_then(|m| m.getattr(name))
+        .and_then(|c| c.cast_into::<PyType>().map_err(PyErr::from));
+    match class {
+        Ok(cls) => PyErr::from_type(cls, msg),
+        Err(_) => PyRuntimeError::new_err(msg),
+    }
+}
+
+fn to_py(py: Python<'_>, e: HitlError) -> PyErr {
+    match e {
+        HitlError::Input(m) => exception(py, "InputError", m),
+        HitlError::Solver(m) => exception(py, "SolverError", m),
+    }
+}
+
+/// Runs `f`, turning a panic into an error that says it is a bug.
+fn guarded<T>(f: impl FnOnce() -> Result<T, HitlError>) -> Result<T, HitlError> {
+    match catch_unwind(AssertUnwindSafe(f)) {
+        Ok(r) => r,
+        Err(payload) => {
+            let what = payload
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| payload.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "unknown panic".into());
+            Err(HitlError::Solver(format!(
+                "internal error in the hitl-slam core ({what}); nothing was changed; please report this with the input"
+            )))
+        }
+    }
+}
+
+fn input_err(msg: impl Into<String>) -> HitlError {
+    HitlError::Input(msg.into())
+}
+
+fn read_poses(poses: &PyReadonlyArray2<'_, f64>) -> Result<Vec<Pose2>, HitlError> {
+    let a = poses.as_array();
+    if a.ncols() != 3 {
+        return Err(input_err(format!(
+            "poses must have shape (N, 3), got {:?}",
+            a.shape()
+        )));
+    }
+    let mut out = Vec::with_capacity(a.nrows());
+    for (i, row) in a.rows().into_iter().enumerate() {
+        let (x, y, t) = (row[0], row[1], row[2]);
+        if !(x.is_finite() && y.is_finite() && t.is_finite()) {
+            return Err(input_err(format!(
+                "pose row {i} is not finite ({x}, {y}, {t}); give finite values"
+            )));
+        }
+        out.push(Pose2::new(x, y, t));
+    }
+    Ok(out)
+}
+
+fn poses_out<'py>(py: Python<'py>, values: &Values) -> Bound<'py, PyArray2<f64>> {
+    let flat: Vec<f64> = values.poses.iter().flat_map(|p| p.to_array()).collect();
+    // Shape (N, 3) always matches the buffer length, so this cannot fail.
+    let n = values.poses.len();
+    Array2::from_shape_vec((n, 3), flat)
+        .unwrap_or_else(|_| Array2::zeros((n, 3)))
+        .into_pyarray(py)
+}
+
+fn read_info(m: numpy::ndarray::ArrayView2<'_, f64>) -> [[f64; 3]; 3] {
+    [
+        [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
+        [m[(1, 0)], m[(1, 1)], m[(1, 2)]],
+        [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
+    ]
+}
+
+/// A pose graph held by the core, with its cached symbolic analysis.
+#[pyclass(module = "hitl_slam._core", name = "Graph")]
+pub struct PyGraph {
+    inner: FactorGraph,
+}
+
+#[pymethods]
+impl PyGraph {
+    #[new]
+    #[pyo3(signature = (num_poses, edges, measurements, information, anchor = 0))]
+    fn new(
+        py: Python<'_>,
+        num_poses: usize,
+        edges: PyReadonlyArray2<'_, i64>,
+        measurements: PyReadonlyArray2<'_, f64>,
+        information: PyReadonlyArray3<'_, f64>,
+        anchor: usize,
+    ) -> PyResult<Self> {
+        let (e, z, info) = (
+            edges.as_array(),
+            measurements.as_array(),
+            information.as_array(),
+        );
+        let m = e.nrows();
+        let build = || -> Result<FactorGraph, HitlError> {
+            if e.ncols() != 2 {
+                return Err(input_err(format!(
+                    "edges must have shape (M, 2), got {:?}",
+                    e.shape()
+                )));
+            }
+            if z.shape() != [m, 3] {
+                return Err(input_err(format!(
+                    "measurements must have shape ({m}, 3), got {:?}",
+                    z.shape()
+                )));
+            }
+            if info.shape() != [m, 3, 3] {
+                return Err(input_err(format!(
+                    "information must have shape ({m}, 3, 3), got {:?}",
+                    info.shape()
+                )));
+            }
+            let mut pairs = Vec::with_capacity(m);
+            for (k, row) in e.rows().into_iter().enumerate() {
+                let (i, j) = (row[0], row[1]);
+                if i < 0 || j < 0 {
+                    return Err(input_err(format!(
+                        "edge {k} has a negative pose index ({i}, {j})"
+                    )));
+                }
+                pairs.push((i as usize, j as usize));
+            }
+            let zs: Vec<[f64; 3]> = z.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect();
+            let infos: Vec<[[f64; 3]; 3]> = info.outer_iter().map(read_info).collect();
+            FactorGraph::from_edges(num_poses, &pairs, &zs, &infos, anchor)
+        };
+        guarded(build)
+            .map(|inner| Self { inner })
+            .map_err(|e| to_py(py, e))
+    }
+
+    /// Number of poses.
+    #[getter]
+    fn num_poses(&self) -> usize {
+        self.inner.num_poses()
+    }
+
+    /// Number of factors (edges and priors).
+    #[getter]
+    fn num_factors(&self) -> usize {
+        self.inner.num_factors()
+    }
+
+    /// How many symbolic analyses have been computed (one per structure change).
+    #[getter]
+    fn analyses(&self) -> usize {
+        self.inner.analyses()
+    }
+
+    /// Adds a relative-pose factor (the next solve redoes the symbolic analysis).
+    fn add_between(
+        &mut self,
+        py: Python<'_>,
+        i: usize,
+        j: usize,
+        measurement: PyReadonlyArray1<'_, f64>,
+        information: PyReadonlyArray2<'_, f64>,
+    ) -> PyResult<()> {
+        let (z, info) = (measurement.as_array(), information.as_array());
+        let graph = &mut self.inner;
+        guarded(|| {
+            if z.len() != 3 || info.shape() != [3, 3] {
+                return Err(input_err(
+                    "measurement must have shape (3,) and information (3, 3)",
+                ));
+            }
+            let f = BetweenFactor::new(i, j, Pose2::new(z[0], z[1], z[2]), &read_info(info))?;
+            graph.add_between(f)
+        })
+        .map_err(|e| to_py(py, e))
+    }
+
+    /// Adds a prior on pose `i`.
+    fn add_prior(
+        &mut self,
+        py: Python<'_>,
+        i: usize,
+        measurement: PyReadonlyArray1<'_, f64>,
+        information: PyReadonlyArray2<'_, f64>,
+    ) -> PyResult<()> {
+        let (z, info) = (measurement.as_array(), information.as_array());
+        let graph = &mut self.inner;
+        guarded(|| {
+            if z.len() != 3 || info.shape() != [3, 3] {
+                return Err(input_err(
+                    "measurement must have shape (3,) and information (3, 3)",
+                ));
+            }
+            let f = PriorFactor::new(i, Pose2::new(z[0], z[1], z[2]), &read_info(info))?;
+            graph.add_prior(f)
+        })
+        .map_err(|e| to_py(py, e))
+    }
+
+    /// chi2 = sum of squared whitened residuals at `poses`.
+    fn chi2(&self, py: Python<'_>, poses: PyReadonlyArray2<'_, f64>) -> PyResult<f64> {
+        let graph = &self.inner;
+        guarded(|| {
+            let values = Values::from_poses(read_poses(&poses)?);
+            graph.check_values(&values)?;
+            Ok(graph.chi2(&values))
+        })
+        .map_err(|e| to_py(py, e))
+    }
+
+    /// Optimizes from `poses`; returns the optimized poses and a report. The GIL is released
+    /// while solving.
+    #[pyo3(signature = (
+        poses, *, method = "lm", max_iterations = 100, relative_tolerance = 1e-6,
+        absolute_tolerance = 1e-6, error_tolerance = 0.0, gradient_tolerance = 1e-12,
+        step_tolerance = 1e-12, lambda_initial = 1e-5, lambda_max = 1e16, diagonal_damping = false
+    ))]
+    #[allow(clippy::too_many_arguments)]
+    fn optimize<'py>(
+        &mut self,
+        py: Python<'py>,
+        poses: PyReadonlyArray2<'py, f64>,
+        method: &str,
+        max_iterations: usize,
+        relative_tolerance: f64,
+        absolute_tolerance: f64,
+        error_tolerance: f64,
+        gradient_tolerance: f64,
+        step_tolerance: f64,
+        lambda_initial: f64,
+        lambda_max: f64,
+        diagonal_damping: bool,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, PySolveReport)> {
+        let method = match method {
+            "lm" => Method::LevenbergMarquardt,
+            "gn" => Method::GaussNewton,
+            other => {
+                return Err(to_py(
+                    py,
+                    input_err(format!("unknown method {other:?}; use \"lm\" or \"gn\"")),
+                ))
+            }
+        };
+        let params = SolverParams {
+            method,
+            max_iterations,
+            relative_tolerance,
+            absolute_tolerance,
+            error_tolerance,
+            gradient_tolerance,
+            step_tolerance,
+            lambda_initial,
+            lambda_max,
+            diagonal_damping,
+        };
+        let mut values = Values::from_poses(read_poses(&poses).map_err(|e| to_py(py, e))?);
+        drop(poses);
+        let graph = &mut self.inner;
+        let result = py.detach(|| guarded(|| solver::optimize(graph, &mut values, &params)));
+        let report = result.map_err(|e| to_py(py, e))?;
+        Ok((poses_out(py, &values), PySolveReport::from(report)))
+    }
+
+    /// Marginal covariances `(K, 3, 3)` of the poses `indices` at `poses` (in each pose's body
+    /// frame, as GTSAM's `Marginals`); the anchored pose has a zero covariance.
+    fn marginals<'py>(
+        &mut self,
+        py: Python<'py>,
+        poses: PyReadonlyArray2<'py, f64>,
+        indices: PyReadonlyArray1<'py, i64>,
+    ) -> PyResult<Bound<'py, PyArray3<f64>>> {
+        let values = Values::from_poses(read_poses(&poses).map_err(|e| to_py(py, e))?);
+        let n = values.poses.len();
+        let mut keys = Vec::new();
+        for &i in indices.as_array().iter() {
+            if i < 0 || i as usize >= n {
+                return Err(to_py(
+                    py,
+                    input_err(format!("pose index {i} is out of range (0..{n})")),
+                ));
+            }
+            keys.push(Key::Pose(i as usize));
+        }
+        let graph = &mut self.inner;
+        let blocks = py
+            .detach(|| guarded(|| solver::marginal_covariances(graph, &values, &keys)))
+            .map_err(|e| to_py(py, e))?;
+        let flat: Vec<f64> = blocks.into_iter().flatten().collect();
+        let k = keys.len();
+        let arr =
+            Array3::from_shape_vec((k, 3, 3), flat).unwrap_or_else(|_| Array3::zeros((k, 3, 3)));
+        Ok(arr.into_pyarray(py))
+    }
+
+    /// The Gauss-Newton system at `poses`, for cross-checks: `(rows, cols, values, gradient,
+    /// pose_indices)` where (rows, cols, values) is the upper triangle of `H = J^T J` in the
+    /// natural order of the free poses `pose_indices`, and `gradient = J^T r`.
+    #[allow(clippy::type_complexity)]
+    fn linear_system<'py>(
+        &mut self,
+        py: Python<'py>,
+        poses: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<(
+        Bound<'py, PyArray1<i64>>,
+        Bound<'py, PyArray1<i64>>,
+        Bound<'py, PyArray1<f64>>,
+        Bound<'py, PyArray1<f64>>,
+        Bound<'py, PyArray1<i64>>,
+    )> {
+        let values = Values::from_poses(read_poses(&poses).map_err(|e| to_py(py, e))?);
+        let graph = &mut self.inner;
+        let (r, c, v, g, keys) = guarded(|| {
+            graph.check_values(&values)?;
+            let (factors, pattern) = graph.parts()?;
+            pattern.linearize(factors, &values);
+            Ok(pattern.upper_triplets_natural())
+        })
+        .map_err(|e| to_py(py, e))?;
+        let as_i64 =
+            |v: Vec<usize>| Array1::from_vec(v.into_iter().map(|x| x as i64).collect::<Vec<i64>>());
+        let pose_idx: Vec<usize> = keys
+            .into_iter()
+            .filter_map(|k| match k {
+                Key::Pose(i) => Some(i),
+                Key::Line(_) => None,
+            })
+            .collect();
+        Ok((
+            as_i64(r).into_pyarray(py),
+            as_i64(c).into_pyarray(py),
+            Array1::from_vec(v).into_pyarray(py),
+            Array1::from_vec(g).into_pyarray(py),
+            as_i64(pose_idx).into_pyarray(py),
+        ))
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Graph(num_poses={}, num_factors={})",
+            self.inner.num_poses(),
+            self.inner.num_factors()
+        )
+    }
+}
+
+/// One trial step of a solve.
+#[pyclass(module = "hitl_slam._core", name = "IterationRecord", frozen, get_all)]
+#[derive(Clone)]
+pub struct PyIterationRecord {
+    iteration: usize,
+    chi2: f64,
+    damping: f64,
+    step_norm: f64,
+    accepted: bool,
+    elapsed_s: f64,
+}
+
+#[pymethods]
+impl PyIterationRecord {
+    fn __repr__(&self) -> String {
+        format!(
+            "IterationRecord(iteration={}, chi2={}, damping={}, step_norm={}, accepted={}, elapsed_s={})",
+            self.iteration,
+            self.chi2,
+            self.damping,
+            self.step_norm,
+            if self.accepted { "True" } else { "False" },
+            self.elapsed_s
+        )
+    }
+}
+
+impl From<&IterationRecord> for PyIterationRecord {
+    fn from(r: &IterationRecord) -> Self {
+        Self {
+            iteration: r.iteration,
+            chi2: r.chi2,
+            damping: r.lambda,
+            step_norm: r.step_norm,
+            accepted: r.accepted,
+            elapsed_s: r.elapsed,
+        }
+    }
+}
+
+/// What a solve did: iterations, chi2 before and after, why it stopped, where the time went.
+#[pyclass(module = "hitl_slam._core", name = "SolveReport", frozen, get_all)]
+pub struct PySolveReport {
+    iterations: usize,
+    linear_solves: usize,
+    initial_chi2: f64,
+    final_chi2: f64,
+    termination: String,
+    converged: bool,
+    time_s: f64,
+    time_symbolic_s: f64,
+    time_linearize_s: f64,
+    time_factorize_s: f64,
+    symbolic_computed: bool,
+    nnz_hessian: usize,
+    nnz_factor: usize,
+    history: Vec<PyIterationRecord>,
+}
+
+impl From<SolveReport> for PySolveReport {
+    fn from(r: SolveReport) -> Self {
+        Self {
+            iterations: r.iterations,
+            linear_solves: r.linear_solves,
+            initial_chi2: r.initial_chi2,
+            final_chi2: r.final_chi2,
+            termination: r.termination.name().to_string(),
+            converged: r.termination.converged(),
+            time_s: r.time,
+            time_symbolic_s: r.time_symbolic,
+            time_linearize_s: r.time_linearize,
+            time_factorize_s: r.time_factorize,
+            symbolic_computed: r.symbolic_computed,
+            nnz_hessian: r.nnz_hessian,
+            nnz_factor: r.nnz_factor,
+            history: r.history.iter().map(PyIterationRecord::from).collect(),
+        }
+    }
+}
+
+#[pymethods]
+impl PySolveReport {
+    fn __repr__(&self) -> String {
+        format!(
+            "SolveReport(iterations={}, initial_chi2={}, final_chi2={}, termination={:?}, time_s={:.6})",
+            self.iterations, self.initial_chi2, self.final_chi2, self.termination, self.time_s
+        )
+    }
+}
+
+/// Wraps an angle to (-pi, pi].
+#[pyfunction]
+fn wrap_angle(a: f64) -> f64 {
+    crate::se2::wrap_angle(a)
+}
+
+#[pymodule]
+fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyGraph>()?;
+    m.add_class::<PySolveReport>()?;
+    m.add_class::<PyIterationRecord>()?;
+    m.add_function(wrap_pyfunction!(wrap_angle, m)?)?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}
