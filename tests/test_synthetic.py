@@ -7,7 +7,6 @@ when it is installed) and, when the compiled core is built, by ``hitl_slam.chi2`
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 
 import numpy as np
@@ -21,42 +20,11 @@ from scipy.sparse.csgraph import connected_components
 from hitl_slam.errors import InputError
 from hitl_slam.graph import PoseGraph
 from hitl_slam.synthetic import chain_with_loops, manhattan_world
+from reference import reference_chi2
+from reference import wrap as _wrap
 
 Generator = Callable[..., tuple[PoseGraph, NDArray[np.float64]]]
 GENERATORS: list[Generator] = [manhattan_world, chain_with_loops]
-
-
-# --- a reference chi2, independent of the package --------------------------------------------
-
-
-def _wrap(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-    return np.asarray(math.pi - np.mod(math.pi - theta, 2.0 * math.pi))
-
-
-def _between(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, _wrap(b[:, 2] - a[:, 2])], axis=1)
-
-
-def _log(p: NDArray[np.float64]) -> NDArray[np.float64]:
-    """SE(2) logarithm, as GTSAM's Pose2.Logmap."""
-    w = p[:, 2]
-    small = np.abs(w) < 1e-10
-    safe = np.where(small, 1.0, w)
-    a = np.where(small, 1.0, np.sin(safe) / safe)
-    b = np.where(small, 0.0, (1.0 - np.cos(safe)) / safe)
-    det = a * a + b * b
-    vx = (a * p[:, 0] + b * p[:, 1]) / det
-    vy = (-b * p[:, 0] + a * p[:, 1]) / det
-    return np.stack([vx, vy, w], axis=1)
-
-
-def reference_chi2(graph: PoseGraph, poses: NDArray[np.float64]) -> float:
-    """Sum of r^T Omega r with r = Log(z_ij^-1 * (x_i^-1 * x_j))."""
-    t_i_j = _between(poses[graph.edges[:, 0]], poses[graph.edges[:, 1]])
-    r = _log(_between(graph.measurements, t_i_j))  # z^-1 * t == between(z, t)
-    return float(np.einsum("mi,mij,mj->", r, graph.information, r))
 
 
 def _num_closures(graph: PoseGraph) -> int:
@@ -201,14 +169,12 @@ def test_chain_too_many_closures_is_an_input_error() -> None:
         chain_with_loops(200, loop_fraction=5.0, world_size=1000)
 
 
-def test_chain_scales_to_100k_poses_quickly() -> None:
-    start = time.perf_counter()
+def test_chain_builds_the_100k_scale_graph() -> None:
+    # Its speed is measured by benches/scale.py, not asserted here.
     graph, _ = chain_with_loops(100_000, loop_fraction=0.1)
-    elapsed = time.perf_counter() - start
     assert graph.num_poses == 100_000
     assert _num_closures(graph) == 10_000
     assert _is_connected(graph)
-    assert elapsed < 10.0, f"generating 100k poses took {elapsed:.1f} s"
 
 
 @pytest.mark.parametrize(
@@ -287,8 +253,6 @@ def test_reference_chi2_matches_gtsam() -> None:
 def test_package_chi2_matches_the_reference() -> None:
     import hitl_slam
 
-    if not hasattr(hitl_slam, "chi2"):
-        pytest.skip("hitl_slam.chi2 is not built yet")
     for graph, truth in (manhattan_world(500), chain_with_loops(500, loop_fraction=0.2)):
         for poses in (truth, graph.poses):
             ours = hitl_slam.chi2(graph, poses)
@@ -300,8 +264,6 @@ def test_package_chi2_matches_the_reference() -> None:
 def test_optimizing_recovers_the_ground_truth() -> None:
     import hitl_slam
 
-    if not hasattr(hitl_slam, "optimize"):
-        pytest.skip("hitl_slam.optimize is not built yet")
     graph, truth = manhattan_world(600, seed=4)
     poses, report = hitl_slam.optimize(graph)
     dof = 3 * (graph.num_edges - graph.num_poses + 1)

@@ -99,9 +99,7 @@ def chi2(graph: PoseGraph, poses: ArrayLike | None = None) -> float:
     return graph.engine().chi2(_poses(graph, poses))
 
 
-def marginals(
-    graph: PoseGraph, poses: ArrayLike | None, indices: ArrayLike
-) -> NDArray[np.float64]:
+def marginals(graph: PoseGraph, poses: ArrayLike | None, indices: ArrayLike) -> NDArray[np.float64]:
     """Marginal covariances ``(K, 3, 3)`` of the poses ``indices`` at ``poses``.
 
     Each is expressed in the pose's own frame, ``(x, y, theta)`` order, as GTSAM's

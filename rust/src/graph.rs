@@ -68,7 +68,7 @@ impl FactorGraph {
                 ));
             }
             let f = BetweenFactor::new(i, j, Pose2::new(z[0], z[1], z[2]), info)
-                .map_err(|e| HitlError::Input(format!("edge {k}: {e}")))?;
+                .map_err(|e| HitlError::Input(format!("edge {k} ({i} -> {j}): {e}")))?;
             g.push(Box::new(f), false);
         }
         g.check_anchored()?;
@@ -83,6 +83,7 @@ impl FactorGraph {
 
     /// Adds a relative-pose factor; the next solve redoes the symbolic analysis.
     pub fn add_between(&mut self, f: BetweenFactor) -> Result<()> {
+        // (Construction errors of `f` are the caller's to label.)
         let (i, j) = f.indices();
         if i >= self.num_poses || j >= self.num_poses {
             return input(format!(

@@ -26,18 +26,18 @@ pub struct BetweenFactor {
 
 impl BetweenFactor {
     /// A factor saying pose `j` is at `measured` (`t_i_j`) in the frame of pose `i`, with the
-    /// given 3x3 information matrix in `(x, y, theta)` order.
+    /// given 3x3 information matrix in `(x, y, theta)` order. Error messages say what is wrong
+    /// with the edge; callers add which edge it is.
     pub fn new(i: usize, j: usize, measured: Pose2, information: &[[f64; 3]; 3]) -> Result<Self> {
         if i == j {
-            return input(format!("edge {i} -> {j} joins a pose to itself; remove it"));
+            return input(format!("joins pose {i} to itself; remove it"));
         }
         if !(measured.x.is_finite() && measured.y.is_finite() && measured.theta.is_finite()) {
             return input(format!(
                 "edge {i} -> {j} has a non-finite measurement {measured:?}"
             ));
         }
-        let sqrt_info = sqrt_information(information)
-            .map_err(|e| crate::error::HitlError::Input(format!("edge {i} -> {j}: {e}")))?;
+        let sqrt_info = sqrt_information(information)?;
         let (cz, sz) = measured.cos_sin();
         Ok(Self {
             keys: [Key::Pose(i), Key::Pose(j)],

@@ -196,7 +196,8 @@ impl PyGraph {
                     "measurement must have shape (3,) and information (3, 3)",
                 ));
             }
-            let f = BetweenFactor::new(i, j, Pose2::new(z[0], z[1], z[2]), &read_info(info))?;
+            let f = BetweenFactor::new(i, j, Pose2::new(z[0], z[1], z[2]), &read_info(info))
+                .map_err(|e| input_err(format!("edge {i} -> {j}: {e}")))?;
             graph.add_between(f)
         })
         .map_err(|e| to_py(py, e))
