@@ -1,13 +1,18 @@
 """Type stubs for the compiled core (checked by ``python -m mypy.stubtest hitl_slam._core``)."""
 
+from typing import final
+
 import numpy as np
 from numpy.typing import NDArray
+
+__all__ = ["Graph", "IterationRecord", "SolveReport", "__version__", "wrap_angle"]
 
 __version__: str
 
 def wrap_angle(a: float) -> float:
     """Wraps an angle to (-pi, pi]."""
 
+@final
 class IterationRecord:
     """One trial step of a solve."""
 
@@ -24,6 +29,7 @@ class IterationRecord:
     @property
     def elapsed_s(self) -> float: ...
 
+@final
 class SolveReport:
     """What a solve did. ``termination`` is one of ``relative_decrease``, ``absolute_decrease``,
     ``error_tolerance``, ``gradient``, ``step_size`` (converged) or ``lambda_limit``,
@@ -58,6 +64,7 @@ class SolveReport:
     @property
     def history(self) -> list[IterationRecord]: ...
 
+@final
 class Graph:
     """A pose graph held by the core, with its cached symbolic analysis."""
 

@@ -9,7 +9,7 @@ same ``(x, y, theta)`` order.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,8 +22,10 @@ if TYPE_CHECKING:
 __all__ = ["PoseGraph"]
 
 
-def _as_array(name: str, value: object, dtype: type, shape: tuple[int | None, ...]) -> NDArray:
-    array = np.ascontiguousarray(value, dtype=dtype)
+def _as_array(
+    name: str, value: object, dtype: type[np.generic], shape: tuple[int | None, ...]
+) -> NDArray[Any]:
+    array: NDArray[Any] = np.ascontiguousarray(value, dtype=dtype)
     if array.ndim != len(shape) or any(
         want is not None and got != want for got, want in zip(array.shape, shape, strict=False)
     ):
