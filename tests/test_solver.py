@@ -283,7 +283,7 @@ def test_bad_solve_arguments_are_input_errors() -> None:
 
 def test_overflowing_cost_is_an_input_error() -> None:
     graph = _tiny()
-    graph.information = np.stack([np.eye(3) * 1e300] * 2)
+    graph.information = np.stack([np.eye(3) * 1e308] * 2)
     with pytest.raises(InputError, match="initial cost is not finite"):
         hitl_slam.optimize(graph, initial=np.array([[0, 0, 0], [5.0, 1, 2], [3, 3, 3]]))
 
