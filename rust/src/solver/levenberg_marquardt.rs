@@ -211,7 +211,9 @@ pub fn optimize(
                     new_chi2 = factors.iter().map(|f| f.chi2(&trial)).sum::<f64>();
                     time_linearize += t.elapsed().as_secs_f64();
                     let actual = chi2 - new_chi2;
-                    if !(new_chi2.is_finite() && actual > 0.0) && predicted <= 16.0 * f64::EPSILON * chi2 {
+                    if !(new_chi2.is_finite() && actual > 0.0)
+                        && predicted <= 16.0 * f64::EPSILON * chi2
+                    {
                         // The model promises less than rounding can resolve: converged to
                         // machine precision, whatever the (tighter) tolerances asked for.
                         history.push(IterationRecord {
