@@ -45,7 +45,8 @@ def _segment(name: str, value: Any) -> Segment:
         seg = ((float(x0), float(y0)), (float(x1), float(y1)))
     except (TypeError, ValueError):
         raise InputError(
-            f"segment {name} must be two [x, y] endpoints, e.g. [[1.0, 2.0], [3.0, 2.0]]; got {value!r}"
+            f"segment {name} must be two [x, y] endpoints, e.g. [[1.0, 2.0], [3.0, 2.0]]; "
+            f"got {value!r}"
         ) from None
     if not all(math.isfinite(v) for p in seg for v in p):
         raise InputError(f"segment {name} has a non-finite coordinate: {value!r}")
