@@ -33,7 +33,7 @@ fn exception(py: Python<'_>, name: &str, msg: String) -> PyErr {
     }
 }
 
-fn to_py(py: Python<'_>, e: HitlError) -> PyErr {
+pub(super) fn to_py(py: Python<'_>, e: HitlError) -> PyErr {
     match e {
         HitlError::Input(m) => exception(py, "InputError", m),
         HitlError::Solver(m) => exception(py, "SolverError", m),
@@ -41,7 +41,7 @@ fn to_py(py: Python<'_>, e: HitlError) -> PyErr {
 }
 
 /// Runs `f`, turning a panic into an error that says it is a bug.
-fn guarded<T>(f: impl FnOnce() -> Result<T, HitlError>) -> Result<T, HitlError> {
+pub(super) fn guarded<T>(f: impl FnOnce() -> Result<T, HitlError>) -> Result<T, HitlError> {
     match catch_unwind(AssertUnwindSafe(f)) {
         Ok(r) => r,
         Err(payload) => {
@@ -57,7 +57,7 @@ fn guarded<T>(f: impl FnOnce() -> Result<T, HitlError>) -> Result<T, HitlError> 
     }
 }
 
-fn input_err(msg: impl Into<String>) -> HitlError {
+pub(super) fn input_err(msg: impl Into<String>) -> HitlError {
     HitlError::Input(msg.into())
 }
 
