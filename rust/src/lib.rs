@@ -10,6 +10,7 @@
 //!
 //! Module map: [`se2`] (pose math), [`values`] (variables), [`factors`] (residuals),
 //! [`graph`] (the factor graph and its gauge), [`solver`] (pattern, LM/GN, marginals),
+//! [`correction`] (explicit correction and back-propagation),
 //! `python` (the only place that knows about Python; behind the `python` feature).
 //!
 //! ```
@@ -30,6 +31,7 @@
 // Index loops read like the formulas they implement (3x3 blocks, CSC columns).
 #![allow(clippy::needless_range_loop)]
 
+pub mod correction;
 pub mod error;
 pub mod factors;
 pub mod graph;

@@ -166,17 +166,17 @@ impl Pose2 {
         ]
     }
 
-    /// The solver's chart: `self * Pose2(delta)` (GTSAM's default Pose2 retract). Its derivative at
-    /// zero is the identity, so covariances in this chart match GTSAM's `Marginals`.
+    /// The solver's chart: `self * Exp(delta)` (GTSAM's Pose2 retract). Its derivative at zero is
+    /// the identity, so covariances in this chart match GTSAM's `Marginals`.
     #[inline]
     pub fn retract(self, delta: [f64; 3]) -> Pose2 {
-        self.compose(Pose2::new(delta[0], delta[1], delta[2]))
+        self.compose(Pose2::exp(delta))
     }
 
-    /// Inverse of [`Pose2::retract`]: the `delta` with `self.retract(delta) == other`.
+    /// Inverse of [`Pose2::retract`]: `Log(self^-1 * other)`.
     #[inline]
     pub fn local(self, other: Pose2) -> [f64; 3] {
-        self.between(other).to_array()
+        self.between(other).log()
     }
 }
 
@@ -239,7 +239,7 @@ mod tests {
                 a.inverse().compose(b).to_array(),
                 1e-12
             ));
-            assert!(close(a.retract(a.local(b)).to_array(), b.to_array(), 1e-12));
+            assert!(close(a.retract(a.local(b)).to_array(), b.to_array(), 1e-9));
             assert!(close(Pose2::exp(a.log()).to_array(), a.to_array(), 1e-9));
             let c = ps[(i * 13 + 5) % ps.len()];
             let lhs = a.compose(b).compose(c);

@@ -47,9 +47,7 @@ impl Values {
     #[inline]
     pub fn retract(&mut self, key: Key, delta: &[f64]) {
         match key {
-            Key::Pose(i) => {
-                self.poses[i] = self.poses[i].compose(Pose2::exp([delta[0], delta[1], delta[2]]))
-            }
+            Key::Pose(i) => self.poses[i] = self.poses[i].retract([delta[0], delta[1], delta[2]]),
             Key::Line(i) => {
                 let l = &mut self.lines[i];
                 l.phi = wrap_angle(l.phi + delta[0]);

@@ -3,7 +3,7 @@
 //! `r = U Log(z_ij^-1 * (x_i^-1 * x_j))`, with `Omega_ij = U^T U`, cost `r^T r`.
 //!
 //! Writing `E = z^-1 x_i^-1 x_j = (t_e, theta_e)` and `Log(E) = (V^-1 t_e, theta_e)`, the Jacobians
-//! in the chart `x (+) d = x * Pose2(d)` are
+//! in the chart `x (+) d = x * Exp(d)` (first order: `t + R d_t`, `theta + d_theta`) are
 //! `dLog/dd_j = [[V^-1 R(theta_e), w], [0, 0, 1]]` and
 //! `dLog/dd_i = [[-V^-1 R_z^T, -V^-1 S R_z^T t_b - w], [0, 0, -1]]`,
 //! where `t_b = R_i^T (t_j - t_i)`, `S = [[0, -1], [1, 0]]`, and `w = d(V^-1)/dtheta t_e`.

@@ -3,9 +3,11 @@
 //! in the solver's chart (see `Pose2::retract`).
 
 mod between;
+pub mod human;
 mod prior;
 
 pub use between::BetweenFactor;
+pub use human::{CentroidShare, PointsToLineFactor, RelationFactor, RelationMode};
 pub use prior::PriorFactor;
 
 use crate::error::{input, Result};

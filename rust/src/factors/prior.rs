@@ -1,5 +1,5 @@
 //! Prior on one pose, as GTSAM's `PriorFactor<Pose2>`: `r = U Log(z^-1 x)`, `Omega = U^T U`.
-//! Jacobian in the chart `x (+) d = x * Pose2(d)`: `[[V^-1 R(theta_e), w], [0, 0, 1]]`.
+//! Jacobian in the chart `x (+) d = x * Exp(d)` (first order: `t + R d_t`, `theta + d_theta`): `[[V^-1 R(theta_e), w], [0, 0, 1]]`.
 
 use super::{check_keys, sqrt_information, whiten3, whiten3x3, Factor, SE2Log};
 use crate::error::{input, Result};

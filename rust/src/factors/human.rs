@@ -1,0 +1,381 @@
+//! Human correction factors (ALGORITHM.md §4.3): each correction adds two line variables
+//! `(phi, rho)` (points p on the line satisfy `n . p = rho`, `n = (cos phi, sin phi)`) and three
+//! kinds of residual blocks:
+//!
+//! - [`PointsToLineFactor`] (R_a, R_b): for the observations of one pose on one line,
+//!   `(n . p_w(s) - rho) / sigma_f` per point, with `p_w(s) = R(theta_i) s + t_i`.
+//! - [`RelationFactor`] (R_p): the stated relation between the two lines and the centroids of
+//!   their observations, `cm = mean p_w(s)`, with `e_phi` the smallest angle between the lines
+//!   (modulo pi: lines are undirected; perpendicular subtracts pi/2 first):
+//!   colocation `[sqrt(K1) (cm_b - cm_a); sqrt(K2) e_phi]`,
+//!   collinear `[sqrt(K1) n_a . (cm_b - cm_a); sqrt(K2) e_phi]`,
+//!   parallel and perpendicular `[sqrt(K2) e_phi]`.
+//!
+//! Jacobians in the solver's chart `x (+) d = x * Exp(d)` (derivative at 0: `dt = R d_t`,
+//! `dtheta = d_theta`), so `d p_w / d pose = [R, R S s]` with `S = [[0, -1], [1, 0]]`.
+
+use std::f64::consts::{FRAC_PI_2, PI};
+
+use super::Factor;
+use crate::error::{input, Result};
+use crate::values::{Key, Values};
+
+/// The relation a person asserts between two features.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RelationMode {
+    Colocation,
+    Collinear,
+    Perpendicular,
+    Parallel,
+}
+
+impl RelationMode {
+    pub fn parse(name: &str) -> Result<Self> {
+        match name {
+            "colocation" => Ok(Self::Colocation),
+            "collinear" => Ok(Self::Collinear),
+            "perpendicular" => Ok(Self::Perpendicular),
+            "parallel" => Ok(Self::Parallel),
+            other => input(format!(
+                "unknown mode {other:?}; use colocation, collinear, perpendicular or parallel"
+            )),
+        }
+    }
+
+    /// Rows of R_p.
+    pub fn residual_dim(self) -> usize {
+        match self {
+            Self::Colocation => 3,
+            Self::Collinear => 2,
+            Self::Perpendicular | Self::Parallel => 1,
+        }
+    }
+}
+
+/// The smallest signed angle from line a to line b, modulo pi, in (-pi/2, pi/2]; for
+/// perpendicular lines, from a direction perpendicular to a.
+#[inline]
+pub fn line_angle_error(mode: RelationMode, phi_a: f64, phi_b: f64) -> f64 {
+    let mut e = phi_b - phi_a;
+    if mode == RelationMode::Perpendicular {
+        e -= FRAC_PI_2;
+    }
+    let e = e - PI * (e / PI).round();
+    if e <= -FRAC_PI_2 {
+        e + PI
+    } else {
+        e
+    }
+}
+
+fn check_points(points: &[[f64; 2]]) -> Result<()> {
+    if points.is_empty() {
+        return input("a line factor needs at least one observation");
+    }
+    if points.iter().any(|p| !(p[0].is_finite() && p[1].is_finite())) {
+        return input("observation points must be finite");
+    }
+    Ok(())
+}
+
+/// R_a / R_b for the points one pose observed on one line.
+#[derive(Clone, Debug)]
+pub struct PointsToLineFactor {
+    keys: [Key; 2],
+    pose: usize,
+    line: usize,
+    /// Robot-frame points.
+    points: Vec<[f64; 2]>,
+    /// 1 / sigma_f (per-point form) or 1 / (sigma_f sqrt|S|) (the paper's averaged form).
+    weight: f64,
+}
+
+impl PointsToLineFactor {
+    pub fn new(pose: usize, line: usize, points: Vec<[f64; 2]>, weight: f64) -> Result<Self> {
+        check_points(&points)?;
+        if !(weight.is_finite() && weight > 0.0) {
+            return input(format!("line factor weight must be positive, got {weight}"));
+        }
+        Ok(Self { keys: [Key::Pose(pose), Key::Line(line)], pose, line, points, weight })
+    }
+}
+
+impl Factor for PointsToLineFactor {
+    fn keys(&self) -> &[Key] {
+        &self.keys
+    }
+
+    fn residual_dim(&self) -> usize {
+        self.points.len()
+    }
+
+    fn residual(&self, values: &Values, r: &mut [f64]) {
+        let x = values.poses[self.pose];
+        let l = values.lines[self.line];
+        let (c, s) = x.cos_sin();
+        let (cp, sp) = (l.phi.cos(), l.phi.sin());
+        for (out, p) in r.iter_mut().zip(&self.points) {
+            let wx = c * p[0] - s * p[1] + x.x;
+            let wy = s * p[0] + c * p[1] + x.y;
+            *out = self.weight * (cp * wx + sp * wy - l.rho);
+        }
+    }
+
+    fn linearize(&self, values: &Values, r: &mut [f64], jacobians: &mut [f64]) {
+        let x = values.poses[self.pose];
+        let l = values.lines[self.line];
+        let (c, s) = x.cos_sin();
+        let (cp, sp) = (l.phi.cos(), l.phi.sin());
+        // n^T R, constant over the points.
+        let nr = [cp * c + sp * s, -cp * s + sp * c];
+        let k = self.points.len();
+        let (jp, jl) = jacobians.split_at_mut(3 * k);
+        for (row, p) in self.points.iter().enumerate() {
+            let wx = c * p[0] - s * p[1] + x.x;
+            let wy = s * p[0] + c * p[1] + x.y;
+            r[row] = self.weight * (cp * wx + sp * wy - l.rho);
+            // d/dtheta: n^T R S p = nr . (-p_y, p_x)
+            jp[3 * row] = self.weight * nr[0];
+            jp[3 * row + 1] = self.weight * nr[1];
+            jp[3 * row + 2] = self.weight * (-nr[0] * p[1] + nr[1] * p[0]);
+            jl[2 * row] = self.weight * (-sp * wx + cp * wy);
+            jl[2 * row + 1] = -self.weight;
+        }
+    }
+}
+
+/// One pose's share of a centroid: how many of its points are in the set, and their sum
+/// (robot frame).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CentroidShare {
+    pub count: f64,
+    pub sum: [f64; 2],
+}
+
+/// R_p: the relation between the two lines of a correction.
+#[derive(Clone, Debug)]
+pub struct RelationFactor {
+    mode: RelationMode,
+    keys: Vec<Key>,
+    line_a: usize,
+    line_b: usize,
+    /// Per pose (keys[2..]): share in cm_a and in cm_b.
+    shares: Vec<(usize, CentroidShare, CentroidShare)>,
+    total_a: f64,
+    total_b: f64,
+    sqrt_k1: f64,
+    sqrt_k2: f64,
+}
+
+impl RelationFactor {
+    /// `shares`: (pose, share in S_a, share in S_b) for every pose of X_a and X_b.
+    pub fn new(
+        mode: RelationMode,
+        line_a: usize,
+        line_b: usize,
+        shares: Vec<(usize, CentroidShare, CentroidShare)>,
+        k1: f64,
+        k2: f64,
+    ) -> Result<Self> {
+        if line_a == line_b {
+            return input("a relation needs two different lines");
+        }
+        if !(k1.is_finite() && k1 > 0.0 && k2.is_finite() && k2 > 0.0) {
+            return input(format!("K1 and K2 must be positive, got {k1} and {k2}"));
+        }
+        let total_a: f64 = shares.iter().map(|s| s.1.count).sum();
+        let total_b: f64 = shares.iter().map(|s| s.2.count).sum();
+        if total_a <= 0.0 || total_b <= 0.0 {
+            return input("both lines of a relation need observations");
+        }
+        let mut keys = vec![Key::Line(line_a), Key::Line(line_b)];
+        for (n, s) in shares.iter().enumerate() {
+            if shares[..n].iter().any(|o| o.0 == s.0) {
+                return input(format!("pose {} is listed twice in a relation", s.0));
+            }
+            if !(s.1.sum.iter().chain(&s.2.sum).all(|v| v.is_finite())) {
+                return input("observation points must be finite");
+            }
+            keys.push(Key::Pose(s.0));
+        }
+        Ok(Self { mode, keys, line_a, line_b, shares, total_a, total_b, sqrt_k1: k1.sqrt(), sqrt_k2: k2.sqrt() })
+    }
+
+    /// The centroids cm_a and cm_b at `values`.
+    pub fn centroids(&self, values: &Values) -> ([f64; 2], [f64; 2]) {
+        let mut ca = [0.0; 2];
+        let mut cb = [0.0; 2];
+        for &(i, sa, sb) in &self.shares {
+            let x = values.poses[i];
+            let (c, s) = x.cos_sin();
+            for (acc, sh, total) in [(&mut ca, sa, self.total_a), (&mut cb, sb, self.total_b)] {
+                if sh.count > 0.0 {
+                    acc[0] += (sh.count * x.x + c * sh.sum[0] - s * sh.sum[1]) / total;
+                    acc[1] += (sh.count * x.y + s * sh.sum[0] + c * sh.sum[1]) / total;
+                }
+            }
+        }
+        (ca, cb)
+    }
+}
+
+impl Factor for RelationFactor {
+    fn keys(&self) -> &[Key] {
+        &self.keys
+    }
+
+    fn residual_dim(&self) -> usize {
+        self.mode.residual_dim()
+    }
+
+    fn residual(&self, values: &Values, r: &mut [f64]) {
+        let la = values.lines[self.line_a];
+        let lb = values.lines[self.line_b];
+        let e = self.sqrt_k2 * line_angle_error(self.mode, la.phi, lb.phi);
+        match self.mode {
+            RelationMode::Colocation => {
+                let (ca, cb) = self.centroids(values);
+                r[0] = self.sqrt_k1 * (cb[0] - ca[0]);
+                r[1] = self.sqrt_k1 * (cb[1] - ca[1]);
+                r[2] = e;
+            }
+            RelationMode::Collinear => {
+                let (ca, cb) = self.centroids(values);
+                r[0] = self.sqrt_k1 * (la.phi.cos() * (cb[0] - ca[0]) + la.phi.sin() * (cb[1] - ca[1]));
+                r[1] = e;
+            }
+            RelationMode::Perpendicular | RelationMode::Parallel => r[0] = e,
+        }
+    }
+
+    fn linearize(&self, values: &Values, r: &mut [f64], jacobians: &mut [f64]) {
+        self.residual(values, r);
+        let d = self.residual_dim();
+        jacobians[..d * (4 + 3 * self.shares.len())].fill(0.0);
+        let (ja, rest) = jacobians.split_at_mut(2 * d);
+        let (jb, jp) = rest.split_at_mut(2 * d);
+        // The angle row is the last one in every mode.
+        let last = d - 1;
+        ja[2 * last] = -self.sqrt_k2;
+        jb[2 * last] = self.sqrt_k2;
+        if matches!(self.mode, RelationMode::Perpendicular | RelationMode::Parallel) {
+            return;
+        }
+        let la = values.lines[self.line_a];
+        let (cp, sp) = (la.phi.cos(), la.phi.sin());
+        if self.mode == RelationMode::Collinear {
+            let (ca, cb) = self.centroids(values);
+            ja[0] = self.sqrt_k1 * (-sp * (cb[0] - ca[0]) + cp * (cb[1] - ca[1]));
+        }
+        for (n, &(i, sa, sb)) in self.shares.iter().enumerate() {
+            let (c, s) = values.poses[i].cos_sin();
+            // d(cm_b - cm_a)/d pose_i, a 2x3 matrix [coef * R, R S sum].
+            let coef = sb.count / self.total_b - sa.count / self.total_a;
+            let sum = [sb.sum[0] / self.total_b - sa.sum[0] / self.total_a, sb.sum[1] / self.total_b - sa.sum[1] / self.total_a];
+            let rs = [-(s * sum[0] + c * sum[1]), c * sum[0] - s * sum[1]];
+            let m = [[coef * c, -coef * s, rs[0]], [coef * s, coef * c, rs[1]]];
+            let block = &mut jp[3 * d * n..3 * d * (n + 1)];
+            match self.mode {
+                RelationMode::Colocation => {
+                    for row in 0..2 {
+                        for col in 0..3 {
+                            block[3 * row + col] = self.sqrt_k1 * m[row][col];
+                        }
+                    }
+                }
+                _ => {
+                    for col in 0..3 {
+                        block[col] = self.sqrt_k1 * (cp * m[0][col] + sp * m[1][col]);
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::factors::testing::check_jacobians;
+    use crate::se2::Pose2;
+    use crate::values::Line2;
+
+    fn values() -> Values {
+        Values {
+            poses: vec![Pose2::new(0.3, -0.2, 0.4), Pose2::new(2.0, 1.0, -1.2), Pose2::new(-1.0, 0.5, 2.9)],
+            lines: vec![Line2 { phi: 0.3, rho: 1.2 }, Line2 { phi: 1.9, rho: -0.4 }],
+        }
+    }
+
+    #[test]
+    fn angle_error_is_modulo_pi_and_smallest() {
+        use RelationMode::*;
+        assert!((line_angle_error(Parallel, 0.1, 0.1 + PI) - 0.0).abs() < 1e-15);
+        assert!((line_angle_error(Parallel, 0.1, 0.3 - PI) - 0.2).abs() < 1e-12);
+        assert!((line_angle_error(Collinear, 3.0, -3.0) - (2.0 * PI - 6.0)).abs() < 1e-12);
+        assert!((line_angle_error(Perpendicular, 0.0, FRAC_PI_2 + 0.01) - 0.01).abs() < 1e-12);
+        assert!((line_angle_error(Perpendicular, 0.0, -FRAC_PI_2 - 0.01) + 0.01).abs() < 1e-12);
+        for k in -3..=3 {
+            let e = line_angle_error(Parallel, 0.5, 0.5 + 0.7 + k as f64 * PI);
+            assert!((e - 0.7).abs() < 1e-12, "{k}: {e}");
+        }
+    }
+
+    #[test]
+    fn point_to_line_residual_and_jacobians() {
+        let v = values();
+        let pts = vec![[1.0, 0.5], [-0.3, 2.0], [0.0, 0.0]];
+        let f = PointsToLineFactor::new(1, 0, pts.clone(), 1.0 / 0.03).unwrap();
+        let mut r = vec![0.0; 3];
+        f.residual(&v, &mut r);
+        let x = v.poses[1];
+        let l = v.lines[0];
+        for (k, p) in pts.iter().enumerate() {
+            let w = x.transform_point(*p);
+            let expect = (l.phi.cos() * w[0] + l.phi.sin() * w[1] - l.rho) / 0.03;
+            assert!((r[k] - expect).abs() < 1e-12);
+        }
+        check_jacobians(&f, &v, 1e-6, 1e-6);
+    }
+
+    fn shares() -> Vec<(usize, CentroidShare, CentroidShare)> {
+        vec![
+            (0, CentroidShare { count: 3.0, sum: [1.0, 2.0] }, CentroidShare::default()),
+            (1, CentroidShare { count: 2.0, sum: [-0.5, 0.7] }, CentroidShare::default()),
+            (2, CentroidShare::default(), CentroidShare { count: 4.0, sum: [2.0, -1.0] }),
+        ]
+    }
+
+    #[test]
+    fn relation_jacobians_every_mode() {
+        for mode in [RelationMode::Colocation, RelationMode::Collinear, RelationMode::Perpendicular, RelationMode::Parallel] {
+            let f = RelationFactor::new(mode, 0, 1, shares(), 1e6, 1e7).unwrap();
+            check_jacobians(&f, &values(), 1e-6, 1e-4);
+        }
+    }
+
+    #[test]
+    fn centroids_are_means_of_world_points() {
+        let f = RelationFactor::new(RelationMode::Colocation, 0, 1, shares(), 1.0, 1.0).unwrap();
+        let v = values();
+        let (ca, cb) = f.centroids(&v);
+        // Pose 0 has 3 points summing to (1, 2): their world sum is R*(1,2) + 3 t.
+        let w0 = v.poses[0].transform_point([1.0, 2.0]);
+        let w0 = [w0[0] + 2.0 * v.poses[0].x, w0[1] + 2.0 * v.poses[0].y];
+        let w1 = v.poses[1].transform_point([-0.5, 0.7]);
+        let w1 = [w1[0] + v.poses[1].x, w1[1] + v.poses[1].y];
+        assert!((ca[0] - (w0[0] + w1[0]) / 5.0).abs() < 1e-12);
+        assert!((ca[1] - (w0[1] + w1[1]) / 5.0).abs() < 1e-12);
+        let w2 = v.poses[2].transform_point([2.0, -1.0]);
+        assert!((cb[0] - (w2[0] + 3.0 * v.poses[2].x) / 4.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn bad_inputs_are_errors() {
+        assert!(PointsToLineFactor::new(0, 0, vec![], 1.0).is_err());
+        assert!(PointsToLineFactor::new(0, 0, vec![[f64::NAN, 0.0]], 1.0).is_err());
+        assert!(RelationFactor::new(RelationMode::Parallel, 0, 0, shares(), 1.0, 1.0).is_err());
+        assert!(RelationFactor::new(RelationMode::Parallel, 0, 1, vec![], 1.0, 1.0).is_err());
+        assert!(RelationMode::parse("same").is_err());
+    }
+}
