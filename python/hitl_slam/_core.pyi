@@ -5,12 +5,35 @@ from typing import final
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Graph", "IterationRecord", "SolveReport", "__version__", "wrap_angle"]
+__all__ = [
+    "Graph",
+    "IterationRecord",
+    "SolveReport",
+    "__version__",
+    "backpropagate",
+    "explicit_transform",
+    "wrap_angle",
+]
 
 __version__: str
 
 def wrap_angle(a: float) -> float:
     """Wraps an angle to (-pi, pi]."""
+
+def explicit_transform(
+    mode: str, p_a: NDArray[np.float64], p_b: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """The rigid transform (x, y, theta) bringing segment p_b into the mode's relation with p_a."""
+
+def backpropagate(
+    poses: NDArray[np.float64],
+    original: NDArray[np.float64],
+    start: int,
+    end: int,
+    rot_var: NDArray[np.float64],
+    trans_var: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """COP-SLAM back-propagation: the chain from poses[start] made to meet poses[end]."""
 
 @final
 class IterationRecord:
@@ -82,6 +105,32 @@ class Graph:
     def num_factors(self) -> int: ...
     @property
     def analyses(self) -> int: ...
+    @property
+    def num_lines(self) -> int: ...
+    def add_correction(
+        self,
+        mode: str,
+        a_poses: NDArray[np.int64],
+        a_points: NDArray[np.float64],
+        b_poses: NDArray[np.int64],
+        b_points: NDArray[np.float64],
+        *,
+        sigma_f: float,
+        k1: float,
+        k2: float,
+        average_points: bool = False,
+    ) -> tuple[int, int]: ...
+    def optimize_with_lines(
+        self,
+        poses: NDArray[np.float64],
+        lines: NDArray[np.float64],
+        *,
+        method: str = "lm",
+        max_iterations: int = 100,
+        relative_tolerance: float = 1e-6,
+        absolute_tolerance: float = 1e-6,
+        lambda_initial: float = 1e-5,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], SolveReport]: ...
     def add_between(
         self, i: int, j: int, measurement: NDArray[np.float64], information: NDArray[np.float64]
     ) -> None: ...

@@ -15,12 +15,17 @@ use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::PyType;
 
+use crate::correction::{
+    backpropagate as backpropagate_chain, explicit_transform as explicit_rigid,
+};
 use crate::error::HitlError;
-use crate::factors::{BetweenFactor, PriorFactor};
+use crate::factors::{
+    BetweenFactor, CentroidShare, PointsToLineFactor, PriorFactor, RelationFactor, RelationMode,
+};
 use crate::graph::FactorGraph;
 use crate::se2::Pose2;
 use crate::solver::{self, IterationRecord, Method, SolveReport, SolverParams};
-use crate::values::{Key, Values};
+use crate::values::{Key, Line2, Values};
 
 fn exception(py: Python<'_>, name: &str, msg: String) -> PyErr {
     let class = py
@@ -259,16 +264,7 @@ impl PyGraph {
         lambda_max: f64,
         diagonal_damping: bool,
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, PySolveReport)> {
-        let method = match method {
-            "lm" => Method::LevenbergMarquardt,
-            "gn" => Method::GaussNewton,
-            other => {
-                return Err(to_py(
-                    py,
-                    input_err(format!("unknown method {other:?}; use \"lm\" or \"gn\"")),
-                ))
-            }
-        };
+        let method = parse_method(method).map_err(|e| to_py(py, e))?;
         let params = SolverParams {
             method,
             max_iterations,
@@ -362,10 +358,170 @@ impl PyGraph {
         ))
     }
 
+    /// Number of line variables (two per human correction).
+    #[getter]
+    fn num_lines(&self) -> usize {
+        self.inner.num_lines()
+    }
+
+    /// Adds one human correction (ALGORITHM.md §4.3): two line variables, the point-to-line
+    /// factors R_a / R_b (one block per observing pose) and the relation R_p. `*_poses[k]` is the
+    /// pose that observed robot-frame point `*_points[k]`. Returns the two line indices.
+    #[pyo3(signature = (mode, a_poses, a_points, b_poses, b_points, *, sigma_f, k1, k2, average_points = false))]
+    #[allow(clippy::too_many_arguments)]
+    fn add_correction(
+        &mut self,
+        py: Python<'_>,
+        mode: &str,
+        a_poses: PyReadonlyArray1<'_, i64>,
+        a_points: PyReadonlyArray2<'_, f64>,
+        b_poses: PyReadonlyArray1<'_, i64>,
+        b_points: PyReadonlyArray2<'_, f64>,
+        sigma_f: f64,
+        k1: f64,
+        k2: f64,
+        average_points: bool,
+    ) -> PyResult<(usize, usize)> {
+        let (ap, aq, bp, bq) = (
+            a_poses.as_array(),
+            a_points.as_array(),
+            b_poses.as_array(),
+            b_points.as_array(),
+        );
+        let graph = &mut self.inner;
+        guarded(|| {
+            let mode = RelationMode::parse(mode)?;
+            if !(sigma_f.is_finite() && sigma_f > 0.0) {
+                return Err(input_err(format!(
+                    "sigma_f must be positive, got {sigma_f}"
+                )));
+            }
+            let n = graph.num_poses();
+            let ga = group_by_pose(ap, aq, n, "a")?;
+            let gb = group_by_pose(bp, bq, n, "b")?;
+            if ga.iter().any(|(i, _)| gb.iter().any(|(j, _)| i == j)) {
+                return Err(input_err(
+                    "a pose observes both features; remove it from one set",
+                ));
+            }
+            let weight = |count: usize| {
+                if average_points {
+                    1.0 / (sigma_f * (count as f64).sqrt())
+                } else {
+                    1.0 / sigma_f
+                }
+            };
+            let (wa, wb) = (weight(aq.nrows()), weight(bq.nrows()));
+            // Build every factor first so that a bad input adds nothing.
+            let la = graph.num_lines();
+            let lb = la + 1;
+            let mut factors: Vec<Box<dyn crate::factors::Factor>> = Vec::new();
+            let mut shares = Vec::new();
+            for (set, w, is_a) in [(&ga, wa, true), (&gb, wb, false)] {
+                for (i, pts) in set.iter() {
+                    let sum = pts
+                        .iter()
+                        .fold([0.0, 0.0], |s, p| [s[0] + p[0], s[1] + p[1]]);
+                    let share = CentroidShare {
+                        count: pts.len() as f64,
+                        sum,
+                    };
+                    shares.push(if is_a {
+                        (*i, share, CentroidShare::default())
+                    } else {
+                        (*i, CentroidShare::default(), share)
+                    });
+                    let line = if is_a { la } else { lb };
+                    factors.push(Box::new(PointsToLineFactor::new(*i, line, pts.clone(), w)?));
+                }
+            }
+            factors.push(Box::new(RelationFactor::new(mode, la, lb, shares, k1, k2)?));
+            graph.add_line();
+            graph.add_line();
+            for f in factors {
+                graph.add_factor(f)?;
+            }
+            Ok((la, lb))
+        })
+        .map_err(|e| to_py(py, e))
+    }
+
+    /// As `optimize`, over poses and line variables: returns (poses, lines, report). `lines`
+    /// is `(L, 2)` rows `(phi, rho)`.
+    #[pyo3(signature = (
+        poses, lines, *, method = "lm", max_iterations = 100, relative_tolerance = 1e-6,
+        absolute_tolerance = 1e-6, lambda_initial = 1e-5
+    ))]
+    #[allow(clippy::too_many_arguments, clippy::type_complexity)]
+    fn optimize_with_lines<'py>(
+        &mut self,
+        py: Python<'py>,
+        poses: PyReadonlyArray2<'py, f64>,
+        lines: PyReadonlyArray2<'py, f64>,
+        method: &str,
+        max_iterations: usize,
+        relative_tolerance: f64,
+        absolute_tolerance: f64,
+        lambda_initial: f64,
+    ) -> PyResult<(
+        Bound<'py, PyArray2<f64>>,
+        Bound<'py, PyArray2<f64>>,
+        PySolveReport,
+    )> {
+        let method = parse_method(method).map_err(|e| to_py(py, e))?;
+        let params = SolverParams {
+            method,
+            max_iterations,
+            relative_tolerance,
+            absolute_tolerance,
+            lambda_initial,
+            ..SolverParams::default()
+        };
+        let l = lines.as_array();
+        if l.ncols() != 2 {
+            return Err(to_py(
+                py,
+                input_err(format!("lines must have shape (L, 2), got {:?}", l.shape())),
+            ));
+        }
+        let line_values: Vec<Line2> = l
+            .rows()
+            .into_iter()
+            .map(|r| Line2 {
+                phi: r[0],
+                rho: r[1],
+            })
+            .collect();
+        if line_values
+            .iter()
+            .any(|v| !(v.phi.is_finite() && v.rho.is_finite()))
+        {
+            return Err(to_py(py, input_err("line values must be finite")));
+        }
+        let mut values = Values {
+            poses: read_poses(&poses).map_err(|e| to_py(py, e))?,
+            lines: line_values,
+        };
+        let graph = &mut self.inner;
+        let report = py
+            .detach(|| guarded(|| solver::optimize(graph, &mut values, &params)))
+            .map_err(|e| to_py(py, e))?;
+        let flat: Vec<f64> = values.lines.iter().flat_map(|v| [v.phi, v.rho]).collect();
+        let nl = values.lines.len();
+        let lines_out =
+            Array2::from_shape_vec((nl, 2), flat).unwrap_or_else(|_| Array2::zeros((nl, 2)));
+        Ok((
+            poses_out(py, &values),
+            lines_out.into_pyarray(py),
+            PySolveReport::from(report),
+        ))
+    }
+
     fn __repr__(&self) -> String {
         format!(
-            "Graph(num_poses={}, num_factors={})",
+            "Graph(num_poses={}, num_lines={}, num_factors={})",
             self.inner.num_poses(),
+            self.inner.num_lines(),
             self.inner.num_factors()
         )
     }
@@ -461,6 +617,104 @@ impl PySolveReport {
     }
 }
 
+fn parse_method(method: &str) -> Result<Method, HitlError> {
+    match method {
+        "lm" => Ok(Method::LevenbergMarquardt),
+        "gn" => Ok(Method::GaussNewton),
+        other => Err(input_err(format!(
+            "unknown method {other:?}; use \"lm\" or \"gn\""
+        ))),
+    }
+}
+
+/// Groups `(pose, point)` rows by pose (sorted by pose, stable in point order).
+#[allow(clippy::type_complexity)]
+fn group_by_pose(
+    poses: numpy::ndarray::ArrayView1<'_, i64>,
+    points: numpy::ndarray::ArrayView2<'_, f64>,
+    n: usize,
+    name: &str,
+) -> Result<Vec<(usize, Vec<[f64; 2]>)>, HitlError> {
+    if points.ncols() != 2 || points.nrows() != poses.len() || poses.is_empty() {
+        return Err(input_err(format!(
+            "{name}: need one (x, y) point per pose index, and at least one; got {} poses and points of shape {:?}",
+            poses.len(),
+            points.shape()
+        )));
+    }
+    let mut rows: Vec<(usize, [f64; 2])> = Vec::with_capacity(poses.len());
+    for (k, &i) in poses.iter().enumerate() {
+        if i < 0 || i as usize >= n {
+            return Err(input_err(format!(
+                "{name}: pose index {i} is out of range (0..{n})"
+            )));
+        }
+        rows.push((i as usize, [points[(k, 0)], points[(k, 1)]]));
+    }
+    rows.sort_by_key(|r| r.0);
+    let mut out: Vec<(usize, Vec<[f64; 2]>)> = Vec::new();
+    for (i, p) in rows {
+        match out.last_mut() {
+            Some((j, v)) if *j == i => v.push(p),
+            _ => out.push((i, vec![p])),
+        }
+    }
+    Ok(out)
+}
+
+fn read_segment(
+    s: numpy::ndarray::ArrayView2<'_, f64>,
+    name: &str,
+) -> Result<[[f64; 2]; 2], HitlError> {
+    if s.shape() != [2, 2] {
+        return Err(input_err(format!(
+            "segment {name} must have shape (2, 2), got {:?}",
+            s.shape()
+        )));
+    }
+    Ok([[s[(0, 0)], s[(0, 1)]], [s[(1, 0)], s[(1, 1)]]])
+}
+
+/// The explicit correction's rigid transform `A = (x, y, theta)` (ALGORITHM.md §4.1) that brings
+/// segment `p_b` into the mode's relation with `p_a`; moved poses become `A * pose`.
+#[pyfunction]
+fn explicit_transform<'py>(
+    py: Python<'py>,
+    mode: &str,
+    p_a: PyReadonlyArray2<'py, f64>,
+    p_b: PyReadonlyArray2<'py, f64>,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let (a, b) = (p_a.as_array(), p_b.as_array());
+    let t = guarded(|| {
+        let mode = RelationMode::parse(mode)?;
+        explicit_rigid(mode, &read_segment(a, "a")?, &read_segment(b, "b")?)
+    })
+    .map_err(|e| to_py(py, e))?;
+    Ok(Array1::from_vec(t.to_array().to_vec()).into_pyarray(py))
+}
+
+/// COP-SLAM back-propagation (ALGORITHM.md §4.2): returns `poses` with `start+1 .. end-1`
+/// rewritten so the chain from `poses[start]` meets `poses[end]` (already moved); `original`
+/// are the poses before the move; `rot_var[k]`, `trans_var[k]` the variances of edge k -> k+1.
+#[pyfunction]
+fn backpropagate<'py>(
+    py: Python<'py>,
+    poses: PyReadonlyArray2<'py, f64>,
+    original: PyReadonlyArray2<'py, f64>,
+    start: usize,
+    end: usize,
+    rot_var: PyReadonlyArray1<'py, f64>,
+    trans_var: PyReadonlyArray1<'py, f64>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let mut moved = Values::from_poses(read_poses(&poses).map_err(|e| to_py(py, e))?);
+    let before = read_poses(&original).map_err(|e| to_py(py, e))?;
+    let rv: Vec<f64> = rot_var.as_array().iter().copied().collect();
+    let tv: Vec<f64> = trans_var.as_array().iter().copied().collect();
+    guarded(|| backpropagate_chain(&mut moved.poses, &before, start, end, &rv, &tv).map(|_| ()))
+        .map_err(|e| to_py(py, e))?;
+    Ok(poses_out(py, &moved))
+}
+
 /// Wraps an angle to (-pi, pi].
 #[pyfunction]
 fn wrap_angle(a: f64) -> f64 {
@@ -473,6 +727,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PySolveReport>()?;
     m.add_class::<PyIterationRecord>()?;
     m.add_function(wrap_pyfunction!(wrap_angle, m)?)?;
+    m.add_function(wrap_pyfunction!(explicit_transform, m)?)?;
+    m.add_function(wrap_pyfunction!(backpropagate, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

@@ -1,0 +1,188 @@
+"""One human correction end to end (the paper's Fig. 3, block 2): interpret the drawing,
+move the later part of the map rigidly (explicit correction), close the gap along the chain
+(back-propagation), then solve poses and line parameters jointly with every active correction.
+
+Inputs are never modified; a drawing that cannot be interpreted raises CorrectionRejected.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hitl_slam import _core
+from hitl_slam.config import DEFAULT, Config
+from hitl_slam.corrections import DrawnCorrection, Interpretation
+from hitl_slam.map import Map, motion_model_information
+
+__all__ = [
+    "CorrectionResult",
+    "apply_correction",
+    "chain_variances",
+    "explicit_and_backpropagate",
+    "fit_line",
+    "solve_all",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class CorrectionResult:
+    """The map after one correction, and how it got there."""
+
+    poses: FloatArray
+    interpretation: Interpretation
+    lines: FloatArray  # (2K, 2) (phi, rho) of every active correction's two lines, in order
+    transform: FloatArray  # the explicit correction's rigid transform (x, y, theta)
+    iterations: int
+    initial_chi2: float
+    final_chi2: float
+    termination: str
+    time_s: float
+    time_interpret_s: float
+    time_solve_s: float
+
+
+def _compose(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Rows of a * b for a single pose a (3,) and rows b (K, 3)."""
+    c, s = np.cos(a[2]), np.sin(a[2])
+    theta = b[:, 2] + a[2]
+    theta = np.where(theta > np.pi, theta - 2 * np.pi, theta)
+    theta = np.where(theta <= -np.pi, theta + 2 * np.pi, theta)
+    return np.stack(
+        [a[0] + c * b[:, 0] - s * b[:, 1], a[1] + s * b[:, 0] + c * b[:, 1], theta], axis=1
+    )
+
+
+def chain_variances(map: Map) -> tuple[FloatArray, FloatArray]:
+    """Rotational and isotropic translational variance of each chain edge k -> k+1 (N-1,),
+    from the map's own edge information, or the motion model where the chain has no edge."""
+    p = map.poses
+    c, s = np.cos(p[:-1, 2]), np.sin(p[:-1, 2])
+    dx, dy = p[1:, 0] - p[:-1, 0], p[1:, 1] - p[:-1, 1]
+    z = np.stack(
+        [c * dx + s * dy, -s * dx + c * dy, np.angle(np.exp(1j * (p[1:, 2] - p[:-1, 2])))], 1
+    )
+    cov = np.linalg.inv(motion_model_information(z, DEFAULT))
+    e = map.edges
+    forward = e[:, 1] == e[:, 0] + 1
+    backward = e[:, 0] == e[:, 1] + 1
+    chain = forward | backward
+    if np.any(chain):
+        k = np.where(forward, e[:, 0], e[:, 1])[chain]
+        cov[k] = np.linalg.inv(map.information[chain])
+    rot = np.ascontiguousarray(cov[:, 2, 2])
+    trans = np.ascontiguousarray(0.5 * (cov[:, 0, 0] + cov[:, 1, 1]))
+    return rot, trans
+
+
+def fit_line(points: FloatArray) -> tuple[float, float]:
+    """Total-least-squares line ``(phi, rho)`` through world points ``(K, 2)``."""
+    centre = points.mean(axis=0)
+    d = points - centre
+    _, vecs = np.linalg.eigh(d.T @ d)
+    normal = vecs[:, 0]  # smallest eigenvalue: the normal direction
+    phi = float(np.arctan2(normal[1], normal[0]))
+    return phi, float(normal @ centre)
+
+
+def _observations(map: Map, rows: NDArray[np.int64]) -> tuple[NDArray[np.int64], FloatArray]:
+    poses = np.ascontiguousarray(rows[:, 0], dtype=np.int64)
+    points = np.ascontiguousarray(map.points[map.offsets[poses] + rows[:, 1]])
+    return poses, points
+
+
+def solve_all(
+    map: Map,
+    active: Sequence[Interpretation],
+    config: Config = DEFAULT,
+    start: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray, _core.SolveReport]:
+    """Joint optimization (§4.3) of poses and the lines of every correction in ``active``,
+    from ``start`` (default: the map's poses), over the map's ORIGINAL relative-pose factors."""
+    x0 = np.ascontiguousarray(map.poses if start is None else start, dtype=np.float64)
+    engine = _core.Graph(x0.shape[0], map.edges, map.measurements, map.information, map.anchor)
+    lines = []
+    for h in active:
+        a_poses, a_points = _observations(map, h.s_a)
+        b_poses, b_points = _observations(map, h.s_b)
+        engine.add_correction(
+            h.mode.value,
+            a_poses,
+            a_points,
+            b_poses,
+            b_points,
+            sigma_f=config.sigma_f,
+            k1=config.k1,
+            k2=config.k2,
+            average_points=config.average_points,
+        )
+        world = map.world_points(x0)
+        lines.append(fit_line(world[map.offsets[a_poses] + h.s_a[:, 1]]))
+        lines.append(fit_line(world[map.offsets[b_poses] + h.s_b[:, 1]]))
+    line_values = np.array(lines, dtype=np.float64).reshape(-1, 2)
+    poses, solved_lines, report = engine.optimize_with_lines(
+        x0,
+        line_values,
+        max_iterations=config.max_iterations,
+        relative_tolerance=config.relative_tolerance,
+        absolute_tolerance=config.absolute_tolerance,
+    )
+    return poses, solved_lines, report
+
+
+def explicit_and_backpropagate(
+    map: Map, poses: FloatArray, h: Interpretation
+) -> tuple[FloatArray, FloatArray]:
+    """§4.1 then §4.2: the rigid move of every pose from ``min(X_b)`` on, and the chain from
+    ``max(X_a)`` made to meet it. Returns (new poses, the transform)."""
+    transform = _core.explicit_transform(
+        h.mode.value, np.asarray(h.line_a, dtype=np.float64), np.asarray(h.line_b, dtype=np.float64)
+    )
+    first = int(h.x_b.min())
+    moved = poses.copy()
+    moved[first:] = _compose(transform, poses[first:])
+    last_a = int(h.x_a.max())
+    if first > last_a + 1:
+        rot, trans = chain_variances(map)
+        moved = _core.backpropagate(moved, poses, last_a, first, rot, trans)
+    return moved, transform
+
+
+def apply_correction(
+    map: Map,
+    poses: FloatArray,
+    drawn: DrawnCorrection,
+    active: Sequence[Interpretation] = (),
+    config: Config = DEFAULT,
+) -> CorrectionResult:
+    """Interpret ``drawn`` on the map as displayed (``poses``), correct, and re-solve with every
+    correction in ``active`` plus the new one. Raises CorrectionRejected when the drawing
+    cannot be interpreted; nothing is modified either way."""
+    from hitl_slam.interpret import interpret
+
+    t0 = time.perf_counter()
+    current = np.ascontiguousarray(poses, dtype=np.float64)
+    h = interpret(map, current, drawn, config)
+    t1 = time.perf_counter()
+    moved, transform = explicit_and_backpropagate(map, current, h)
+    new_poses, lines, report = solve_all(map, [*active, h], config, moved)
+    t2 = time.perf_counter()
+    return CorrectionResult(
+        poses=new_poses,
+        interpretation=h,
+        lines=lines,
+        transform=transform,
+        iterations=report.iterations,
+        initial_chi2=report.initial_chi2,
+        final_chi2=report.final_chi2,
+        termination=report.termination,
+        time_s=t2 - t0,
+        time_interpret_s=t1 - t0,
+        time_solve_s=t2 - t1,
+    )
