@@ -11,6 +11,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
+from functools import partial
 from pathlib import Path
 from typing import TypeVar
 
@@ -38,6 +39,48 @@ examples:
 Writes a Manhattan-world pose graph (a robot driving on a grid, noisy odometry, loop closures at
 revisited cells) whose vertices are the composed odometry, and the ground truth next to it as
 OUT.truth.txt (one "x y theta" line per pose).
+"""
+
+_CORRECT_EPILOG = """\
+examples:
+  hitl-slam correct map.covars --corrections fixes.jsonl -o fixed.covars
+  hitl-slam correct run.clf.gz --corrections fixes.jsonl -o fixed.g2o --session run.hitl
+  hitl-slam correct map.covars --corrections fixes.jsonl -o fixed.pgm --keep-going
+
+MAP is a .covars file, a CARMEN log (.clf/.log, optionally .gz/.bz2) or a session (.hitl, its
+current map). The corrections file has one JSON object per line, applied in order, each on the
+map as it stands after the previous ones:
+
+  {"mode": "collinear", "a": [[1.20, 3.40], [4.10, 3.45]], "b": [[10.0, 3.9], [13.2, 4.0]]}
+  {"mode": "colocation", "a": [[0, 0], [0, 2]], "b": [[5, 1], [5, 3]], "sigma_h": 0.08}
+  {"action": "undo"}
+
+mode is colocation, collinear, perpendicular or parallel; a and b are the two drawn segments
+(world frame, metres); sigma_h is the drawing accuracy in metres. Blank lines are skipped; there
+are no comments. A session's applied corrections are exported in this form by
+`hitl-slam export SESSION.hitl -o C.jsonl`.
+
+A correction that cannot be interpreted (no observations under a segment, interleaved pose sets),
+an undo with nothing to undo and a redo with nothing to redo are rejected. Without --keep-going
+the run stops at the first one with exit code 2 and writes nothing; with --keep-going they are
+skipped and listed, and the rest still apply (exit code 0 once OUT is written).
+
+OUT's extension picks its format (.covars, .g2o, .txt TUM, .pgm + .yaml occupancy grid).
+--session also keeps the whole run as a session file (a new file; an existing one is never
+overwritten) that `hitl-slam serve` or `hitl-slam export` can open. "moved" counts the poses a
+step moved by more than 1 mm or 1 mrad.
+"""
+
+_EXPORT_EPILOG = """\
+examples:
+  hitl-slam export run.hitl -o run.covars        # the session's current map
+  hitl-slam export run.hitl -o run.jsonl         # its applied corrections, replayable
+  hitl-slam export run.clf.gz -o run.pgm         # occupancy grid (+ run.yaml for map_server)
+  hitl-slam export map.covars -o map.txt         # trajectory, TUM: t x y z qx qy qz qw
+
+MAP_OR_SESSION is a .covars file, a CARMEN log (.clf/.log, optionally .gz/.bz2) or a session
+(.hitl). OUT's extension picks the format: .covars, .g2o, .txt, .pgm, or .jsonl (corrections;
+only from a session, whose file is read and never changed).
 """
 
 
@@ -132,6 +175,139 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
+_MAP_OUTPUTS = (".covars", ".g2o", ".txt", ".pgm", ".png", ".svg")
+
+
+def _check_map_output(out: Path, extra: tuple[str, ...] = ()) -> None:
+    if out.suffix.lower() not in _MAP_OUTPUTS + extra:
+        supported = ", ".join(_MAP_OUTPUTS[:4] + extra)
+        raise InputError(f"{out}: unsupported output extension {out.suffix!r}; use {supported}")
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+def _cmd_correct(args: argparse.Namespace) -> int:
+    from hitl_slam.corrections_file import Apply, Undo, read_corrections
+    from hitl_slam.errors import CorrectionRejected
+    from hitl_slam.io.maps import load_map
+    from hitl_slam.session import Session, moved_poses
+
+    out = Path(args.output)
+    _check_map_output(out)
+    session_path = None if args.session is None else Path(args.session)
+    if session_path is not None:
+        if session_path.suffix.lower() != ".hitl":
+            raise InputError(f"{session_path}: a session file must end in .hitl; rename it")
+        if session_path.exists():
+            raise InputError(
+                f"{session_path}: already exists; `hitl-slam correct` starts a new session and "
+                "never overwrites one: choose another name or delete the old file"
+            )
+    steps = read_corrections(args.corrections)
+    t_start = time.perf_counter()
+    the_map = _with_progress("loading", args.quiet, lambda: load_map(args.map))
+    rejected: list[tuple[int, str]] = []
+    counts = {"applied": 0, "undo": 0, "redo": 0}
+
+    def reject(line: int, reason: str) -> None:
+        if not args.keep_going:
+            raise InputError(
+                f"{args.corrections}:{line}: {reason}; nothing was written (fix or delete the "
+                "line, or pass --keep-going to skip it)"
+            )
+        rejected.append((line, reason))
+        if not args.quiet:
+            print(f"{line:>5}  {'rejected':<14} {reason}")
+
+    with Session.new(the_map) as session:
+        if not args.quiet:
+            print(
+                f"{args.map}: {the_map.num_poses} poses, {the_map.num_points} points; "
+                f"{len(steps)} steps in {args.corrections}"
+            )
+            print(
+                f"{'line':>5}  {'step':<14} {'moved':>7} {'chi2 before':>16} "
+                f"{'chi2 after':>16} {'ms':>9}"
+            )
+        for step in steps:
+            before = session.poses
+            t0 = time.perf_counter()
+            if isinstance(step, Apply):
+                mode = step.drawn.mode.value
+                try:
+                    _with_progress(
+                        f"line {step.line}: {mode}", args.quiet, partial(session.apply, step.drawn)
+                    )
+                except CorrectionRejected as exc:
+                    reject(step.line, f"{mode} correction rejected: {_one_line(str(exc))}")
+                    continue
+                counts["applied"] += 1
+                stats = session.history[-1].stats
+                assert stats is not None
+                chi2 = f"{stats.initial_chi2:>16.6f} {stats.final_chi2:>16.6f}"
+                name = mode
+            else:
+                name = "undo" if isinstance(step, Undo) else "redo"
+                possible = session.can_undo if name == "undo" else session.can_redo
+                if not possible:
+                    reject(step.line, f"nothing to {name}")
+                    continue
+                if name == "undo":
+                    session.undo()
+                else:
+                    session.redo()
+                counts[name] += 1
+                chi2 = f"{'-':>16} {'-':>16}"
+            elapsed_ms = 1e3 * (time.perf_counter() - t0)
+            moved, _ = moved_poses(before, session.poses)
+            if not args.quiet:
+                print(f"{step.line:>5}  {name:<14} {moved:>7} {chi2} {elapsed_ms:>9.2f}")
+        _with_progress("writing", args.quiet, lambda: session.save(out))
+        if session_path is not None:
+            session.write_journal(session_path)
+    if rejected and not args.quiet:
+        print(f"rejected ({len(rejected)}):")
+        for line, reason in rejected:
+            print(f"  {args.corrections}:{line}: {reason}")
+    done = f"{counts['applied']} corrections applied"
+    if counts["undo"] or counts["redo"]:
+        done += f", {counts['undo']} undone, {counts['redo']} redone"
+    if rejected:
+        lines = ", ".join(str(line) for line, _ in rejected)
+        done += f", {len(rejected)} rejected (line{'s' if len(rejected) > 1 else ''} {lines})"
+    written = f"wrote {out}" + ("" if session_path is None else f" and {session_path}")
+    print(f"{done} in {time.perf_counter() - t_start:.2f} s; {written}")
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from hitl_slam.io.maps import load_map
+
+    out = Path(args.output)
+    _check_map_output(out, (".jsonl",))
+    source = Path(args.input)
+    if out.suffix.lower() == ".jsonl":
+        from hitl_slam.session import Session
+
+        if source.suffix.lower() != ".hitl":
+            raise InputError(
+                f"{source}: corrections (.jsonl) come from a session; give a .hitl session file "
+                "as input"
+            )
+        with Session.open(source) as session:
+            count = session.export_corrections(out)
+        print(f"wrote {out}: {count} corrections from {source}")
+        return 0
+    from hitl_slam.io.export import export
+
+    the_map = _with_progress("loading", args.quiet, lambda: load_map(source))
+    _with_progress("writing", args.quiet, lambda: export(the_map, the_map.poses, out))
+    print(f"wrote {out}: {the_map.num_poses} poses, {the_map.num_points} points from {source}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="hitl-slam",
@@ -184,6 +360,43 @@ def build_parser() -> argparse.ArgumentParser:
     generate.add_argument("--poses", type=int, default=1000, metavar="N", help="default 1000")
     generate.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     generate.set_defaults(func=_cmd_generate)
+
+    correct = sub.add_parser(
+        "correct",
+        help="apply a file of human corrections (JSON Lines) to a map",
+        description="Apply scripted corrections to a map, in order, as a person would in the UI.",
+        epilog=_CORRECT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    correct.add_argument("map", metavar="MAP", help="input map (.covars, .clf/.log, .hitl)")
+    correct.add_argument(
+        "--corrections", required=True, metavar="C.jsonl", help="corrections, one per line"
+    )
+    correct.add_argument("-o", "--output", required=True, metavar="OUT", help="output map file")
+    correct.add_argument(
+        "--session", metavar="S.hitl", help="also write the run as a new session file"
+    )
+    correct.add_argument(
+        "--keep-going",
+        action="store_true",
+        help="skip (and list) rejected corrections instead of stopping at the first",
+    )
+    correct.add_argument("-q", "--quiet", action="store_true", help="only the summary line")
+    correct.set_defaults(func=_cmd_correct)
+
+    export = sub.add_parser(
+        "export",
+        help="convert a map or session to another format, or a session to its corrections",
+        description="Write a map or a session's current map in another format.",
+        epilog=_EXPORT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    export.add_argument(
+        "input", metavar="MAP_OR_SESSION", help="input map (.covars, .clf/.log) or session (.hitl)"
+    )
+    export.add_argument("-o", "--output", required=True, metavar="OUT", help="output file")
+    export.add_argument("-q", "--quiet", action="store_true", help="only the summary line")
+    export.set_defaults(func=_cmd_export)
     return parser
 
 

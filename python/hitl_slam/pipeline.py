@@ -108,6 +108,7 @@ def solve_all(
     x0 = np.ascontiguousarray(map.poses if start is None else start, dtype=np.float64)
     engine = _core.Graph(x0.shape[0], map.edges, map.measurements, map.information, map.anchor)
     lines = []
+    world = map.world_points(x0) if active else np.empty((0, 2))
     for h in active:
         a_poses, a_points = _observations(map, h.s_a)
         b_poses, b_points = _observations(map, h.s_b)
@@ -122,7 +123,6 @@ def solve_all(
             k2=config.k2,
             average_points=config.average_points,
         )
-        world = map.world_points(x0)
         lines.append(fit_line(world[map.offsets[a_poses] + h.s_a[:, 1]]))
         lines.append(fit_line(world[map.offsets[b_poses] + h.s_b[:, 1]]))
     line_values = np.array(lines, dtype=np.float64).reshape(-1, 2)

@@ -35,6 +35,7 @@ pub mod correction;
 pub mod error;
 pub mod factors;
 pub mod graph;
+pub mod interpret;
 pub mod se2;
 pub mod solver;
 pub mod values;

@@ -15,7 +15,11 @@ fn weights(var: &[f64]) -> Result<Vec<f64>> {
     }
     let total: f64 = var.iter().sum();
     let n = var.len();
-    let mut w: Vec<f64> = if total > 0.0 { var.iter().map(|v| v / total).collect() } else { vec![1.0 / n as f64; n] };
+    let mut w: Vec<f64> = if total > 0.0 {
+        var.iter().map(|v| v / total).collect()
+    } else {
+        vec![1.0 / n as f64; n]
+    };
     if let Some((last, rest)) = w.split_last_mut() {
         *last = 1.0 - rest.iter().sum::<f64>();
     }
@@ -40,13 +44,17 @@ pub fn backpropagate(
         return input("backpropagate: poses, original poses and edge variances disagree in size");
     }
     if !(start < end && end < n) {
-        return input(format!("backpropagate: need start < end < {n}, got {start} and {end}"));
+        return input(format!(
+            "backpropagate: need start < end < {n}, got {start} and {end}"
+        ));
     }
     if end == start + 1 {
         // Adjacent blocks: no poses in between, no gap to spread.
         return Ok(vec![original[start].between(original[end])]);
     }
-    let z: Vec<Pose2> = (start..end).map(|k| original[k].between(original[k + 1])).collect();
+    let z: Vec<Pose2> = (start..end)
+        .map(|k| original[k].between(original[k + 1]))
+        .collect();
     let target = poses[end];
     let composed_theta = poses[start].theta + z.iter().map(|e| e.theta).sum::<f64>();
     let c_theta = wrap_angle(target.theta - composed_theta);
@@ -62,7 +70,11 @@ pub fn backpropagate(
         let (c, s) = (heading.cos(), heading.sin());
         let t = rotate(c, s, [e.x, e.y]);
         heading += e.theta + w_rot[k] * c_theta;
-        q.push(Pose2 { x: prev.x + t[0], y: prev.y + t[1], theta: heading });
+        q.push(Pose2 {
+            x: prev.x + t[0],
+            y: prev.y + t[1],
+            theta: heading,
+        });
     }
     // Translation: what is left at the end, spread by translational weight (world frame).
     let last = q[end - start];
@@ -128,8 +140,14 @@ mod tests {
         }
         // The rotation was spread by rotational variance: each edge turned by w_k * C_theta.
         let total: f64 = (start..end).map(|k| rot[k]).sum();
-        let orig_z: Vec<Pose2> = (start..end).map(|k| original[k].between(original[k + 1])).collect();
-        let c_theta: f64 = adjusted.iter().zip(&orig_z).map(|(x, o)| wrap_angle(x.theta - o.theta)).sum();
+        let orig_z: Vec<Pose2> = (start..end)
+            .map(|k| original[k].between(original[k + 1]))
+            .collect();
+        let c_theta: f64 = adjusted
+            .iter()
+            .zip(&orig_z)
+            .map(|(x, o)| wrap_angle(x.theta - o.theta))
+            .sum();
         for (k, (x, o)) in adjusted.iter().zip(&orig_z).enumerate() {
             let share = wrap_angle(x.theta - o.theta);
             assert!((share - c_theta * rot[start + k] / total).abs() < 1e-12);

@@ -44,7 +44,11 @@ pub fn explicit_transform(mode: RelationMode, p_a: &Segment2, p_b: &Segment2) ->
     // A = T(cm_b + shift) R(dphi) T(-cm_b)
     let (c, s) = (dphi.cos(), dphi.sin());
     let rc = [c * cm_b[0] - s * cm_b[1], s * cm_b[0] + c * cm_b[1]];
-    Ok(Pose2::new(cm_b[0] + shift[0] - rc[0], cm_b[1] + shift[1] - rc[1], dphi))
+    Ok(Pose2::new(
+        cm_b[0] + shift[0] - rc[0],
+        cm_b[1] + shift[1] - rc[1],
+        dphi,
+    ))
 }
 
 #[cfg(test)]
@@ -73,12 +77,17 @@ mod tests {
         let a = explicit_transform(RelationMode::Collinear, &pa, &pb).unwrap();
         let nb = apply(a, &pb);
         assert!(nb[0][1].abs() < 1e-12 && nb[1][1].abs() < 1e-12);
-        assert!((mid(&nb)[0] - mid(&pb)[0]).abs() < 1e-12, "slid along the line");
+        assert!(
+            (mid(&nb)[0] - mid(&pb)[0]).abs() < 1e-12,
+            "slid along the line"
+        );
         // parallel: rotation about cm_b only
         let a = explicit_transform(RelationMode::Parallel, &pa, &pb).unwrap();
         let nb = apply(a, &pb);
         assert!(line_angle_error(RelationMode::Parallel, dir(&pa), dir(&nb)).abs() < 1e-12);
-        assert!((mid(&nb)[0] - mid(&pb)[0]).abs() < 1e-12 && (mid(&nb)[1] - mid(&pb)[1]).abs() < 1e-12);
+        assert!(
+            (mid(&nb)[0] - mid(&pb)[0]).abs() < 1e-12 && (mid(&nb)[1] - mid(&pb)[1]).abs() < 1e-12
+        );
         // perpendicular
         let pc: Segment2 = [[5.0, 0.0], [5.2, 3.0]];
         let a = explicit_transform(RelationMode::Perpendicular, &pa, &pc).unwrap();
@@ -93,7 +102,12 @@ mod tests {
         let pb: Segment2 = [[6.0, 1.0], [9.0, 2.3]];
         let ra: Segment2 = [pa[1], pa[0]];
         let rb: Segment2 = [pb[1], pb[0]];
-        for mode in [RelationMode::Colocation, RelationMode::Collinear, RelationMode::Perpendicular, RelationMode::Parallel] {
+        for mode in [
+            RelationMode::Colocation,
+            RelationMode::Collinear,
+            RelationMode::Perpendicular,
+            RelationMode::Parallel,
+        ] {
             let base = explicit_transform(mode, &pa, &pb).unwrap();
             for (x, y) in [(&ra, &pb), (&pa, &rb), (&ra, &rb)] {
                 let other = explicit_transform(mode, x, y).unwrap();
@@ -117,6 +131,8 @@ mod tests {
         let p: Segment2 = [[1.0, 1.0], [1.0, 1.0]];
         let q: Segment2 = [[0.0, 0.0], [1.0, 0.0]];
         assert!(explicit_transform(RelationMode::Parallel, &p, &q).is_err());
-        assert!(explicit_transform(RelationMode::Parallel, &q, &[[f64::NAN, 0.0], [1.0, 1.0]]).is_err());
+        assert!(
+            explicit_transform(RelationMode::Parallel, &q, &[[f64::NAN, 0.0], [1.0, 1.0]]).is_err()
+        );
     }
 }

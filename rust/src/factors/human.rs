@@ -72,7 +72,10 @@ fn check_points(points: &[[f64; 2]]) -> Result<()> {
     if points.is_empty() {
         return input("a line factor needs at least one observation");
     }
-    if points.iter().any(|p| !(p[0].is_finite() && p[1].is_finite())) {
+    if points
+        .iter()
+        .any(|p| !(p[0].is_finite() && p[1].is_finite()))
+    {
         return input("observation points must be finite");
     }
     Ok(())
@@ -96,7 +99,13 @@ impl PointsToLineFactor {
         if !(weight.is_finite() && weight > 0.0) {
             return input(format!("line factor weight must be positive, got {weight}"));
         }
-        Ok(Self { keys: [Key::Pose(pose), Key::Line(line)], pose, line, points, weight })
+        Ok(Self {
+            keys: [Key::Pose(pose), Key::Line(line)],
+            pose,
+            line,
+            points,
+            weight,
+        })
     }
 }
 
@@ -198,7 +207,17 @@ impl RelationFactor {
             }
             keys.push(Key::Pose(s.0));
         }
-        Ok(Self { mode, keys, line_a, line_b, shares, total_a, total_b, sqrt_k1: k1.sqrt(), sqrt_k2: k2.sqrt() })
+        Ok(Self {
+            mode,
+            keys,
+            line_a,
+            line_b,
+            shares,
+            total_a,
+            total_b,
+            sqrt_k1: k1.sqrt(),
+            sqrt_k2: k2.sqrt(),
+        })
     }
 
     /// The centroids cm_a and cm_b at `values`.
@@ -241,7 +260,8 @@ impl Factor for RelationFactor {
             }
             RelationMode::Collinear => {
                 let (ca, cb) = self.centroids(values);
-                r[0] = self.sqrt_k1 * (la.phi.cos() * (cb[0] - ca[0]) + la.phi.sin() * (cb[1] - ca[1]));
+                r[0] = self.sqrt_k1
+                    * (la.phi.cos() * (cb[0] - ca[0]) + la.phi.sin() * (cb[1] - ca[1]));
                 r[1] = e;
             }
             RelationMode::Perpendicular | RelationMode::Parallel => r[0] = e,
@@ -258,7 +278,10 @@ impl Factor for RelationFactor {
         let last = d - 1;
         ja[2 * last] = -self.sqrt_k2;
         jb[2 * last] = self.sqrt_k2;
-        if matches!(self.mode, RelationMode::Perpendicular | RelationMode::Parallel) {
+        if matches!(
+            self.mode,
+            RelationMode::Perpendicular | RelationMode::Parallel
+        ) {
             return;
         }
         let la = values.lines[self.line_a];
@@ -271,7 +294,10 @@ impl Factor for RelationFactor {
             let (c, s) = values.poses[i].cos_sin();
             // d(cm_b - cm_a)/d pose_i, a 2x3 matrix [coef * R, R S sum].
             let coef = sb.count / self.total_b - sa.count / self.total_a;
-            let sum = [sb.sum[0] / self.total_b - sa.sum[0] / self.total_a, sb.sum[1] / self.total_b - sa.sum[1] / self.total_a];
+            let sum = [
+                sb.sum[0] / self.total_b - sa.sum[0] / self.total_a,
+                sb.sum[1] / self.total_b - sa.sum[1] / self.total_a,
+            ];
             let rs = [-(s * sum[0] + c * sum[1]), c * sum[0] - s * sum[1]];
             let m = [[coef * c, -coef * s, rs[0]], [coef * s, coef * c, rs[1]]];
             let block = &mut jp[3 * d * n..3 * d * (n + 1)];
@@ -302,8 +328,18 @@ mod tests {
 
     fn values() -> Values {
         Values {
-            poses: vec![Pose2::new(0.3, -0.2, 0.4), Pose2::new(2.0, 1.0, -1.2), Pose2::new(-1.0, 0.5, 2.9)],
-            lines: vec![Line2 { phi: 0.3, rho: 1.2 }, Line2 { phi: 1.9, rho: -0.4 }],
+            poses: vec![
+                Pose2::new(0.3, -0.2, 0.4),
+                Pose2::new(2.0, 1.0, -1.2),
+                Pose2::new(-1.0, 0.5, 2.9),
+            ],
+            lines: vec![
+                Line2 { phi: 0.3, rho: 1.2 },
+                Line2 {
+                    phi: 1.9,
+                    rho: -0.4,
+                },
+            ],
         }
     }
 
@@ -340,15 +376,41 @@ mod tests {
 
     fn shares() -> Vec<(usize, CentroidShare, CentroidShare)> {
         vec![
-            (0, CentroidShare { count: 3.0, sum: [1.0, 2.0] }, CentroidShare::default()),
-            (1, CentroidShare { count: 2.0, sum: [-0.5, 0.7] }, CentroidShare::default()),
-            (2, CentroidShare::default(), CentroidShare { count: 4.0, sum: [2.0, -1.0] }),
+            (
+                0,
+                CentroidShare {
+                    count: 3.0,
+                    sum: [1.0, 2.0],
+                },
+                CentroidShare::default(),
+            ),
+            (
+                1,
+                CentroidShare {
+                    count: 2.0,
+                    sum: [-0.5, 0.7],
+                },
+                CentroidShare::default(),
+            ),
+            (
+                2,
+                CentroidShare::default(),
+                CentroidShare {
+                    count: 4.0,
+                    sum: [2.0, -1.0],
+                },
+            ),
         ]
     }
 
     #[test]
     fn relation_jacobians_every_mode() {
-        for mode in [RelationMode::Colocation, RelationMode::Collinear, RelationMode::Perpendicular, RelationMode::Parallel] {
+        for mode in [
+            RelationMode::Colocation,
+            RelationMode::Collinear,
+            RelationMode::Perpendicular,
+            RelationMode::Parallel,
+        ] {
             let f = RelationFactor::new(mode, 0, 1, shares(), 1e6, 1e7).unwrap();
             check_jacobians(&f, &values(), 1e-6, 1e-4);
         }

@@ -5,6 +5,8 @@
 //! package's exception classes (defined in `hitl_slam/errors.py`), and a panic is caught here
 //! and reported as an internal error instead of reaching the user as `PanicException`.
 
+mod interpret;
+
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
 use numpy::ndarray::{Array1, Array2, Array3};
@@ -729,6 +731,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(wrap_angle, m)?)?;
     m.add_function(wrap_pyfunction!(explicit_transform, m)?)?;
     m.add_function(wrap_pyfunction!(backpropagate, m)?)?;
+    interpret::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }
