@@ -16,8 +16,8 @@ from hitl_slam.config import DEFAULT
 from hitl_slam.corrections import Interpretation, Mode
 from hitl_slam.map import Map
 from hitl_slam.pipeline import chain_variances, explicit_and_backpropagate, fit_line, solve_all
+from hitl_slam.sim.corridor import INNER_BOTTOM, OUTER_BOTTOM, OUTER_LEFT, World, corridor_loop
 from reference import compose, exp, whitened, wrap
-from worlds import INNER_BOTTOM, OUTER_BOTTOM, OUTER_LEFT, World, corridor_loop
 
 FloatArray = NDArray[np.float64]
 

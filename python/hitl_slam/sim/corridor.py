@@ -1,6 +1,6 @@
-"""Small generated worlds with known walls for the correction tests: a rectangular corridor
-loop driven a bit more than once, a simulated 2D lidar, noisy odometry and an injected heading
-fault, so that the second pass sees the first pass's walls in the wrong place.
+"""A generated world with known walls: a rectangular corridor loop driven one or more times, a
+simulated 2D lidar, noisy odometry and an injected heading fault, so that later passes see the
+first pass's walls in the wrong place. Deterministic under a seed; used by tests and benchmarks.
 """
 
 from __future__ import annotations
@@ -13,6 +13,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.map import Map
+
+__all__ = ["WALLS", "World", "corridor_loop", "drawn_segment"]
 
 FloatArray = NDArray[np.float64]
 
@@ -56,7 +58,9 @@ def _path(step: float, laps: float) -> FloatArray:
     return np.column_stack([xy, theta])
 
 
-def _scan(pose: FloatArray, beams: int, max_range: float, rng: np.random.Generator, noise: float):
+def _scan(
+    pose: FloatArray, beams: int, max_range: float, rng: np.random.Generator, noise: float
+) -> tuple[FloatArray, NDArray[np.int64]]:
     angles = pose[2] + np.linspace(-math.pi, math.pi, beams, endpoint=False)
     d = np.stack([np.cos(angles), np.sin(angles)], axis=1)  # (B, 2)
     p0, p1 = WALLS[:, :2], WALLS[:, 2:]
