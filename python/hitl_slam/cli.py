@@ -175,12 +175,11 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
-_MAP_OUTPUTS = (".covars", ".g2o", ".txt", ".pgm", ".png", ".svg")
-
-
 def _check_map_output(out: Path, extra: tuple[str, ...] = ()) -> None:
-    if out.suffix.lower() not in _MAP_OUTPUTS + extra:
-        supported = ", ".join(_MAP_OUTPUTS[:4] + extra)
+    from hitl_slam.io.export import EXPORT_EXTENSIONS
+
+    if out.suffix.lower() not in EXPORT_EXTENSIONS + extra:
+        supported = ", ".join(EXPORT_EXTENSIONS + extra)
         raise InputError(f"{out}: unsupported output extension {out.suffix!r}; use {supported}")
 
 
@@ -211,7 +210,7 @@ def _cmd_correct(args: argparse.Namespace) -> int:
     rejected: list[tuple[int, str]] = []
     counts = {"applied": 0, "undo": 0, "redo": 0}
 
-    def reject(line: int, reason: str) -> None:
+    def reject(line: int, name: str, reason: str) -> None:
         if not args.keep_going:
             raise InputError(
                 f"{args.corrections}:{line}: {reason}; nothing was written (fix or delete the "
@@ -219,7 +218,7 @@ def _cmd_correct(args: argparse.Namespace) -> int:
             )
         rejected.append((line, reason))
         if not args.quiet:
-            print(f"{line:>5}  {'rejected':<14} {reason}")
+            print(f"{line:>5}  {name:<14} {'rejected (listed below)':>24}")
 
     with Session.new(the_map) as session:
         if not args.quiet:
@@ -241,7 +240,7 @@ def _cmd_correct(args: argparse.Namespace) -> int:
                         f"line {step.line}: {mode}", args.quiet, partial(session.apply, step.drawn)
                     )
                 except CorrectionRejected as exc:
-                    reject(step.line, f"{mode} correction rejected: {_one_line(str(exc))}")
+                    reject(step.line, mode, f"{mode} correction rejected: {_one_line(str(exc))}")
                     continue
                 counts["applied"] += 1
                 stats = session.history[-1].stats
@@ -252,7 +251,7 @@ def _cmd_correct(args: argparse.Namespace) -> int:
                 name = "undo" if isinstance(step, Undo) else "redo"
                 possible = session.can_undo if name == "undo" else session.can_redo
                 if not possible:
-                    reject(step.line, f"nothing to {name}")
+                    reject(step.line, name, f"nothing to {name}")
                     continue
                 if name == "undo":
                     session.undo()
@@ -271,7 +270,8 @@ def _cmd_correct(args: argparse.Namespace) -> int:
         print(f"rejected ({len(rejected)}):")
         for line, reason in rejected:
             print(f"  {args.corrections}:{line}: {reason}")
-    done = f"{counts['applied']} corrections applied"
+    applied = counts["applied"]
+    done = f"{applied} correction{'' if applied == 1 else 's'} applied"
     if counts["undo"] or counts["redo"]:
         done += f", {counts['undo']} undone, {counts['redo']} redone"
     if rejected:

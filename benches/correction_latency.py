@@ -1,0 +1,292 @@
+#!/usr/bin/env python
+"""Latency of one human correction end to end (interpret + explicit correction + back-propagation +
+joint solve with every earlier correction), as a person waits for it in the UI.
+
+Two maps: a generated corridor building (3,000 poses, ~300,000 points, 15 earlier corrections made
+by a simulated human drawing on the current map, as a person would), and the Freiburg 079 log
+(4791 scans; ../shared/datasets/laser/freiburg-079-corrected.log.gz) damaged by a heading fault and
+repaired by the same simulated human. The timed correction is applied repeatedly to the same
+state; the table gives the median and the spread. Meant to run as
+
+    python benches/correction_latency.py --write benches/README.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hitl_slam.config import DEFAULT
+from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.errors import CorrectionRejected
+from hitl_slam.map import Map
+from hitl_slam.pipeline import apply_correction
+from hitl_slam.sim.corridor import (
+    OUTER_BOTTOM,
+    OUTER_LEFT,
+    OUTER_RIGHT,
+    OUTER_TOP,
+    corridor_loop,
+    drawn_segment,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+FR079 = ROOT.parent / "shared" / "datasets" / "laser" / "freiburg-079-corrected.log.gz"
+FloatArray = NDArray[np.float64]
+
+
+def _time(apply: Callable[[], object], repeats: int) -> list[float]:
+    out = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        apply()
+        out.append(time.perf_counter() - t)
+    return out
+
+
+def _build_history(
+    m: Map,
+    candidates: Sequence[Callable[[FloatArray], DrawnCorrection]],
+    wanted: int,
+    log: Callable[[str], None],
+) -> tuple[FloatArray, list[Interpretation], list[Callable[[FloatArray], DrawnCorrection]]]:
+    """Applies drawings one at a time on the current map until ``wanted`` were accepted; returns
+    the map, the accepted interpretations and the drawings not used yet."""
+    poses = m.poses.copy()
+    active: list[Interpretation] = []
+    remaining = list(candidates)
+    while remaining and len(active) < wanted:
+        draw = remaining.pop(0)
+        try:
+            result = apply_correction(m, poses, draw(poses), active, DEFAULT)
+        except (CorrectionRejected, ValueError) as exc:
+            log(f"  (skipped a drawing: {str(exc).splitlines()[0]})")
+            continue
+        poses = result.poses
+        active.append(result.interpretation)
+        log(
+            f"  correction {len(active)}: {result.interpretation.mode.value}, "
+            f"{1e3 * result.time_s:.1f} ms"
+        )
+    return poses, active, remaining
+
+
+def corridor_case(repeats: int, log: Callable[[str], None]) -> dict[str, object]:
+    world = corridor_loop(seed=3, laps=11.6, beams=120, max_range=6.0, fault_at=400)
+    m = world.map
+    rng = np.random.default_rng(7)
+    lap = 260
+    walls = [OUTER_BOTTOM, OUTER_RIGHT, OUTER_TOP, OUTER_LEFT]
+    first_visit = {
+        OUTER_BOTTOM: (0, 60),
+        OUTER_RIGHT: (70, 120),
+        OUTER_TOP: (135, 190),
+        OUTER_LEFT: (200, 250),
+    }
+    candidates: list[Callable[[FloatArray], DrawnCorrection]] = []
+    for k in range(1, 12):
+        for wall in walls:
+            lo, hi = first_visit[wall]
+            if (hi + k * lap) > m.num_poses:
+                continue
+
+            def draw(
+                poses: FloatArray, wall: int = wall, lo: int = lo, hi: int = hi, k: int = k
+            ) -> DrawnCorrection:
+                a = drawn_segment(world, poses, wall, (lo, hi), rng)
+                b = drawn_segment(world, poses, wall, (lo + k * lap, hi + k * lap), rng)
+                return DrawnCorrection.make(a, b, Mode.COLOCATION)
+
+            candidates.append(draw)
+    log(f"corridor: {m.num_poses} poses, {m.num_points} points")
+    poses, active, remaining = _build_history(m, candidates, 15, log)
+    timed = None
+    for draw in remaining:
+        drawing = draw(poses)
+        try:
+            apply_correction(m, poses, drawing, active, DEFAULT)
+        except CorrectionRejected:
+            continue
+        timed = drawing
+        break
+    if timed is None:
+        raise RuntimeError("no drawing left for the timed correction")
+    times = _time(lambda: apply_correction(m, poses, timed, active, DEFAULT), repeats)
+    last = apply_correction(m, poses, timed, active, DEFAULT)
+    return {
+        "map": "generated corridor building (hitl_slam.sim.corridor_loop, 11.6 laps)",
+        "poses": m.num_poses,
+        "points": m.num_points,
+        "earlier": len(active),
+        "times": times,
+        "interpret_ms": 1e3 * last.time_interpret_s,
+        "solve_ms": 1e3 * last.time_solve_s,
+        "iterations": last.iterations,
+    }
+
+
+def fr079_case(repeats: int, log: Callable[[str], None]) -> dict[str, object] | None:
+    if not FR079.is_file():
+        log(f"skipping Freiburg 079: {FR079} not found")
+        return None
+    from hitl_slam.io.carmen import read_carmen
+
+    m = read_carmen(FR079)
+    truth = m.poses.copy()
+    n = m.num_poses
+    # Damage: a 3 degree heading fault half way, as a failing gyro would cause.
+    fault = n // 2
+    c = truth[fault]
+    ang = math.radians(3.0)
+    rot = np.array([[math.cos(ang), -math.sin(ang)], [math.sin(ang), math.cos(ang)]])
+    damaged = truth.copy()
+    damaged[fault:, :2] = (truth[fault:, :2] - c[:2]) @ rot.T + c[:2]
+    damaged[fault:, 2] = np.angle(np.exp(1j * (truth[fault:, 2] + ang)))
+    m = Map.from_poses_and_scans(
+        damaged, [m.points[m.offsets[i] : m.offsets[i + 1]] for i in range(n)], name="fr079-damaged"
+    )
+    # Revisits: pairs (early i, late j) whose TRUE positions are within 0.5 m.
+    early = np.arange(0, fault - 200, 25)
+    late = np.arange(fault + 200, n, 7)
+    pairs = []
+    for i in early:
+        d = np.hypot(*(truth[late, :2] - truth[i, :2]).T)
+        if d.min() < 0.5:
+            pairs.append((int(i), int(late[int(np.argmin(d))])))
+    rng = np.random.default_rng(11)
+    true_world = m.world_points(truth)
+    owner = m.pose_of_point()
+
+    def wall_segment(poses: FloatArray, i: int, j: int) -> DrawnCorrection:
+        # The longest straight run seen by scan i (in truth), then where scans near i and near j
+        # show it on the current map.
+        pts = true_world[(owner == i)]
+        best = None
+        for _ in range(60):
+            p, q = pts[rng.integers(len(pts), size=2)]
+            d = q - p
+            if np.hypot(*d) < 0.5:
+                continue
+            nrm = np.array([-d[1], d[0]]) / np.hypot(*d)
+            inl = np.abs((pts - p) @ nrm) < 0.03
+            if best is None or inl.sum() > best[0]:
+                best = (int(inl.sum()), p, nrm)
+        if best is None or best[0] < 20:
+            raise ValueError("no wall in view")
+        _, p, nrm = best
+        world_now = m.world_points(poses)
+
+        def seg(lo: int, hi: int) -> list[list[float]]:
+            sel = (owner >= lo) & (owner < hi) & (np.abs((true_world - p) @ nrm) < 0.03)
+            sel &= np.hypot(*(true_world - p).T) < 2.0
+            w = world_now[sel]
+            if len(w) < 20:
+                raise ValueError("wall barely seen")
+            centre = w.mean(0)
+            _, vecs = np.linalg.eigh((w - centre).T @ (w - centre))
+            dirn = vecs[:, 1]
+            proj = (w - centre) @ dirn
+            lo_q, hi_q = np.quantile(proj, [0.2, 0.8])
+            return [
+                list(map(float, centre + t * dirn + rng.normal(0, 0.05, 2))) for t in (lo_q, hi_q)
+            ]
+
+        return DrawnCorrection.make(seg(i - 3, i + 4), seg(j - 3, j + 4), Mode.COLOCATION)
+
+    candidates = [lambda poses, i=i, j=j: wall_segment(poses, i, j) for i, j in pairs]
+    log(f"fr079: {n} poses, {m.num_points} points, {len(pairs)} revisit pairs")
+    poses, active, remaining = _build_history(m, candidates, 15, log)
+    timed = None
+    for draw in remaining:
+        try:
+            drawing = draw(poses)
+            apply_correction(m, poses, drawing, active, DEFAULT)
+        except (CorrectionRejected, ValueError):
+            continue
+        timed = drawing
+        break
+    if timed is None:
+        log("fr079: no drawing left for the timed correction")
+        return None
+    times = _time(lambda: apply_correction(m, poses, timed, active, DEFAULT), repeats)
+    last = apply_correction(m, poses, timed, active, DEFAULT)
+    return {
+        "map": "Freiburg 079 (corrected log, 3 degree heading fault injected half way)",
+        "poses": n,
+        "points": m.num_points,
+        "earlier": len(active),
+        "times": times,
+        "interpret_ms": 1e3 * last.time_interpret_s,
+        "solve_ms": 1e3 * last.time_solve_s,
+        "iterations": last.iterations,
+    }
+
+
+def table(rows: Sequence[dict[str, object]]) -> str:
+    out = [
+        "| map | poses | points | earlier corrections | median (ms) | min - max (ms) "
+        "| interpret (ms) | solve (ms) | LM iterations |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        t = [1e3 * x for x in r["times"]]  # type: ignore[attr-defined]
+        out.append(
+            f"| {r['map']} | {r['poses']} | {r['points']} | {r['earlier']} "
+            f"| {statistics.median(t):.1f} | {min(t):.1f} - {max(t):.1f} "
+            f"| {r['interpret_ms']:.1f} | {r['solve_ms']:.1f} | {r['iterations']} |"
+        )
+    return "\n".join(out)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    import compare_gtsam as shared
+
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument(
+        "--write", type=Path, metavar="README", help="replace the latency section of this file"
+    )
+    args = parser.parse_args(argv)
+    log = lambda msg: print(msg, file=sys.stderr)  # noqa: E731
+    rows = [corridor_case(args.repeats, log)]
+    fr = fr079_case(args.repeats, log)
+    if fr is not None:
+        rows.append(fr)
+    body = "\n".join(
+        [
+            f"Measured {shared.now_utc()} with:",
+            "",
+            "```sh",
+            shared.command_line(),
+            "```",
+            "",
+            *shared.machine_description(None),
+            "",
+            f"One correction end to end, timed {args.repeats} times on the same state "
+            "(interpret + explicit + back-propagate + joint solve with all earlier corrections); "
+            "the target is a median under 100 ms.",
+            "",
+            table(rows),
+            "",
+            "Freiburg 079 data: the Freiburg SLAM benchmark (Kuemmerle et al. 2009), via Radish; "
+            "thanks to its authors.",
+        ]
+    )
+    print(body)
+    if args.write:
+        shared.replace_section(args.write, "latency", body)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,616 @@
+"""An editing session on a map: corrections one at a time, undo and redo of any depth, save; every
+event journaled (:mod:`hitl_slam.journal`) before the map in memory changes, so reopening the file
+rebuilds the same state bit for bit from the journal's pose checkpoints (ALGORITHM.md §5).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import enum
+import math
+import os
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hitl_slam.config import DEFAULT, Config
+from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.errors import CorrectionRejected, InputError, SolverError
+from hitl_slam.journal import Event, EventKind, Journal
+from hitl_slam.map import Map
+
+__all__ = [
+    "MOVED_ANGLE_RAD",
+    "MOVED_DISTANCE_M",
+    "Applier",
+    "CorrectionOutcome",
+    "CorrectionStats",
+    "EntryStatus",
+    "HistoryEntry",
+    "Session",
+    "apply_in_order",
+    "moved_poses",
+]
+
+MOVED_DISTANCE_M = 1e-3
+"""A pose "moved" in a correction when its position changed by more than this [m] ..."""
+MOVED_ANGLE_RAD = 1e-3
+"""... or its heading by more than this [rad]."""
+
+_DIED = "the program ended before the correction finished"
+
+
+class CorrectionOutcome(Protocol):
+    """What an applier returns (``hitl_slam.pipeline.CorrectionResult`` is one)."""
+
+    @property
+    def poses(self) -> NDArray[np.float64]: ...
+    @property
+    def interpretation(self) -> Interpretation: ...
+    @property
+    def iterations(self) -> int: ...
+    @property
+    def initial_chi2(self) -> float: ...
+    @property
+    def final_chi2(self) -> float: ...
+    @property
+    def time_s(self) -> float: ...
+
+
+Applier = Callable[
+    [Map, NDArray[np.float64], DrawnCorrection, Sequence[Interpretation], Config],
+    CorrectionOutcome,
+]
+"""``(map, poses, drawn, active, config) -> outcome``: interpret ``drawn`` on ``poses`` and solve
+with the ``active`` corrections plus the new one, without mutating any input; raise
+:class:`CorrectionRejected` when the drawing cannot be interpreted."""
+
+
+def _default_applier() -> Applier:
+    from hitl_slam.pipeline import apply_correction
+
+    return apply_correction
+
+
+class EntryStatus(enum.Enum):
+    """Where a requested correction stands."""
+
+    PENDING = "pending"  # being computed right now
+    APPLIED = "applied"  # part of the current map
+    UNDONE = "undone"  # undone, can be redone
+    DISCARDED = "discarded"  # undone, then dropped by a newer correction (as in any editor)
+    REJECTED = "rejected"  # could not be interpreted; nothing changed
+    INTERRUPTED = "interrupted"  # the computation failed or the program ended during it
+
+
+@dataclass(frozen=True)
+class CorrectionStats:
+    """Numbers about one applied correction."""
+
+    iterations: int
+    initial_chi2: float
+    final_chi2: float
+    time_s: float  # [s] the applier's own time
+    poses_moved: int  # poses that moved more than MOVED_DISTANCE_M or MOVED_ANGLE_RAD
+    max_move_m: float  # [m] the largest change of a pose position
+
+    def to_json(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> CorrectionStats:
+        return cls(
+            iterations=int(data["iterations"]),
+            initial_chi2=float(data["initial_chi2"]),
+            final_chi2=float(data["final_chi2"]),
+            time_s=float(data["time_s"]),
+            poses_moved=int(data["poses_moved"]),
+            max_move_m=float(data["max_move_m"]),
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class HistoryEntry:
+    """One requested correction, as the session's history shows it."""
+
+    index: int  # position in the history, from 0
+    seq: int  # journal sequence number of its request event
+    time: float  # Unix time of the request
+    drawn: DrawnCorrection  # the raw input
+    status: EntryStatus
+    interpretation: Interpretation | None = None  # set once applied
+    stats: CorrectionStats | None = None  # set once applied
+    reason: str | None = None  # why it was rejected or interrupted
+
+    @property
+    def mode(self) -> Mode:
+        return self.drawn.mode
+
+
+@dataclass(eq=False)
+class _Entry:
+    index: int
+    seq: int
+    time: float
+    drawn: DrawnCorrection
+    status: EntryStatus
+    interpretation: Interpretation | None = None
+    stats: CorrectionStats | None = None
+    reason: str | None = None
+    poses: NDArray[np.float64] | None = None  # checkpoint, while applied or redoable
+
+    def snapshot(self) -> HistoryEntry:
+        return HistoryEntry(
+            self.index,
+            self.seq,
+            self.time,
+            self.drawn,
+            self.status,
+            self.interpretation,
+            self.stats,
+            self.reason,
+        )
+
+
+def _frozen(poses: NDArray[np.float64]) -> NDArray[np.float64]:
+    poses.flags.writeable = False
+    return poses
+
+
+def _drawn_from_json(data: Any) -> DrawnCorrection:
+    if not isinstance(data, dict):
+        raise TypeError("the correction is not a JSON object")
+    return DrawnCorrection.make(data["a"], data["b"], data["mode"], data.get("sigma_h"))
+
+
+class _State:
+    """The undo/redo state machine; fed the same events live and when a journal is replayed."""
+
+    def __init__(self, initial: NDArray[np.float64]) -> None:
+        self.initial = _frozen(np.array(initial, dtype=np.float64, order="C"))
+        self.entries: list[_Entry] = []
+        self.by_seq: dict[int, _Entry] = {}
+        self.applied: list[_Entry] = []
+        self.redo: list[_Entry] = []
+        self.pending: _Entry | None = None
+
+    @property
+    def poses(self) -> NDArray[np.float64]:
+        if not self.applied:
+            return self.initial
+        top = self.applied[-1].poses
+        assert top is not None
+        return top
+
+    def active(self) -> list[Interpretation]:
+        return [e.interpretation for e in self.applied if e.interpretation is not None]
+
+    def close_pending(self, reason: str) -> None:
+        if self.pending is not None:
+            self.pending.status = EntryStatus.INTERRUPTED
+            self.pending.reason = reason
+            self.pending = None
+
+    def _outcome_of(self, event: Event) -> _Entry:
+        entry = self.pending
+        if entry is None or event.payload.get("request") != entry.seq:
+            raise ValueError(f"{event.kind.value} without its request")
+        self.pending = None
+        return entry
+
+    def _stacked(self, event: Event, stack: list[_Entry]) -> _Entry:
+        if not stack or stack[-1].seq != event.payload.get("request"):
+            raise ValueError(f"{event.kind.value} of a correction that is not the next one")
+        return stack.pop()
+
+    def apply(self, event: Event) -> None:
+        kind = event.kind
+        if kind in (EventKind.LOAD, EventKind.SAVE):
+            return
+        if kind is EventKind.REQUEST:
+            self.close_pending(_DIED)
+            drawn = _drawn_from_json(event.payload["correction"])
+            entry = _Entry(len(self.entries), event.seq, event.time, drawn, EntryStatus.PENDING)
+            self.entries.append(entry)
+            self.by_seq[entry.seq] = entry
+            self.pending = entry
+        elif kind is EventKind.CORRECTION:
+            entry = self._outcome_of(event)
+            poses = event.poses
+            if poses is None or poses.dtype != np.float64 or poses.shape != self.initial.shape:
+                raise ValueError("a correction without a valid pose checkpoint")
+            entry.interpretation = Interpretation.from_json(event.payload["interpretation"])
+            entry.stats = CorrectionStats.from_json(event.payload["stats"])
+            entry.poses = _frozen(np.ascontiguousarray(poses))
+            entry.status = EntryStatus.APPLIED
+            for dropped in self.redo:
+                dropped.status = EntryStatus.DISCARDED
+                dropped.poses = None
+            self.redo.clear()
+            self.applied.append(entry)
+        elif kind in (EventKind.REJECTION, EventKind.INTERRUPTED):
+            entry = self._outcome_of(event)
+            rejected = kind is EventKind.REJECTION
+            entry.status = EntryStatus.REJECTED if rejected else EntryStatus.INTERRUPTED
+            entry.reason = str(event.payload.get("reason", ""))
+        elif kind is EventKind.UNDO:
+            self.close_pending(_DIED)
+            entry = self._stacked(event, self.applied)
+            entry.status = EntryStatus.UNDONE
+            self.redo.append(entry)
+        elif kind is EventKind.REDO:
+            self.close_pending(_DIED)
+            entry = self._stacked(event, self.redo)
+            entry.status = EntryStatus.APPLIED
+            self.applied.append(entry)
+        else:  # pragma: no cover - EventKind is closed
+            raise ValueError(f"unknown event kind {kind}")
+
+    @classmethod
+    def replay(cls, initial: NDArray[np.float64], events: Sequence[Event], where: str) -> _State:
+        state = cls(initial)
+        for event in events:
+            try:
+                state.apply(event)
+            except (KeyError, TypeError, ValueError, IndexError) as exc:
+                raise InputError(
+                    f"{where}: the session file is damaged (event {event.seq}, "
+                    f"{event.kind.value}: {exc}); restore it from a copy, or start a new session "
+                    "from the input map"
+                ) from None
+        state.close_pending(_DIED)
+        return state
+
+
+def moved_poses(before: NDArray[np.float64], after: NDArray[np.float64]) -> tuple[int, float]:
+    """How many poses moved more than :data:`MOVED_DISTANCE_M` or :data:`MOVED_ANGLE_RAD`
+    between two ``(N, 3)`` pose arrays, and the largest change of a position [m]."""
+    distance = np.hypot(after[:, 0] - before[:, 0], after[:, 1] - before[:, 1])
+    turn = np.abs(np.mod(after[:, 2] - before[:, 2] + math.pi, 2.0 * math.pi) - math.pi)
+    moved = (distance > MOVED_DISTANCE_M) | (turn > MOVED_ANGLE_RAD)
+    return int(np.count_nonzero(moved)), float(distance.max(initial=0.0))
+
+
+def _stats(
+    before: NDArray[np.float64], after: NDArray[np.float64], outcome: CorrectionOutcome
+) -> CorrectionStats:
+    count, largest = moved_poses(before, after)
+    return CorrectionStats(
+        iterations=int(outcome.iterations),
+        initial_chi2=float(outcome.initial_chi2),
+        final_chi2=float(outcome.final_chi2),
+        time_s=float(outcome.time_s),
+        poses_moved=count,
+        max_move_m=largest,
+    )
+
+
+def _checked_poses(poses: Any, shape: tuple[int, ...]) -> NDArray[np.float64]:
+    out = np.array(poses, dtype=np.float64, order="C")
+    if out.shape != shape:
+        raise SolverError(f"the correction returned poses of shape {out.shape}, expected {shape}")
+    if not np.isfinite(out).all():
+        raise SolverError("the correction returned non-finite poses; the map was not changed")
+    return out
+
+
+def apply_in_order(
+    map: Map,
+    corrections: Sequence[DrawnCorrection],
+    config: Config = DEFAULT,
+    applier: Applier | None = None,
+    *,
+    start: NDArray[np.float64] | None = None,
+) -> tuple[NDArray[np.float64], list[CorrectionOutcome]]:
+    """Apply ``corrections`` one after another from ``start`` (default: the map's poses), each on
+    the map as it stands, with no session or journal. Returns the final poses and every outcome.
+
+    Raises:
+        CorrectionRejected: a correction cannot be interpreted (its index is in the message).
+    """
+    apply = applier if applier is not None else _default_applier()
+    poses = np.array(map.poses if start is None else start, dtype=np.float64, order="C")
+    active: list[Interpretation] = []
+    outcomes: list[CorrectionOutcome] = []
+    for k, drawn in enumerate(corrections):
+        try:
+            outcome = apply(map, poses, drawn, list(active), config)
+        except CorrectionRejected as exc:
+            raise CorrectionRejected(f"correction {k + 1}: {exc}") from exc
+        poses = _checked_poses(outcome.poses, poses.shape)
+        active.append(outcome.interpretation)
+        outcomes.append(outcome)
+    return poses, outcomes
+
+
+class Session:
+    """A map being corrected, with its journal. Create with :meth:`new`, reopen with :meth:`open`.
+
+    Operations are serialized (one correction at a time); reading :attr:`poses` and
+    :attr:`history` from another thread while a correction computes is safe.
+    """
+
+    def __init__(
+        self, journal: Journal, map: Map, config: Config, state: _State, applier: Applier | None
+    ) -> None:
+        self._journal = journal
+        self._map = map
+        self._config = config
+        self._state = state
+        self._applier = applier
+        self._operation = threading.Lock()  # held for a whole operation, including the solve
+        self._guard = threading.Lock()  # held briefly around every state change and read
+        self._closed = False
+
+    # -- opening ----------------------------------------------------------------------------
+
+    @classmethod
+    def new(
+        cls,
+        map: Map,
+        path: str | os.PathLike[str] | None = None,
+        config: Config = DEFAULT,
+        applier: Applier | None = None,
+    ) -> Session:
+        """Start a session on ``map`` journaled at ``path`` (a new file; ``None``: in memory).
+
+        ``applier`` computes a correction (default :func:`hitl_slam.pipeline.apply_correction`).
+        """
+        journal = Journal.create(path, map, config)
+        try:
+            stored = journal.read_map()
+            state = _State(stored.poses)
+            from hitl_slam import __version__
+
+            journal.append(
+                EventKind.LOAD,
+                {
+                    "name": stored.name,
+                    "source": stored.source,
+                    "poses": stored.num_poses,
+                    "points": stored.num_points,
+                    "tool": f"hitl-slam {__version__}",
+                },
+            )
+            return cls(journal, stored, journal.read_config(), state, applier)
+        except BaseException:
+            journal.close()
+            raise
+
+    @classmethod
+    def open(cls, path: str | os.PathLike[str], applier: Applier | None = None) -> Session:
+        """Reopen a session file: the same map, history and undo/redo stacks as when it was left,
+        from the journal's checkpoints (nothing is recomputed). A correction that was being
+        computed when the program ended shows as :attr:`EntryStatus.INTERRUPTED`."""
+        journal = Journal.open(path)
+        try:
+            stored = journal.read_map()
+            state = _State.replay(stored.poses, journal.events(), os.fspath(path))
+            return cls(journal, stored, journal.read_config(), state, applier)
+        except BaseException:
+            journal.close()
+            raise
+
+    # -- reading ----------------------------------------------------------------------------
+
+    @property
+    def path(self) -> str | None:
+        """The session file, or ``None`` for an in-memory session."""
+        return self._journal.path
+
+    @property
+    def config(self) -> Config:
+        return self._config
+
+    @property
+    def input_map(self) -> Map:
+        """The map the session started from (its poses are the input poses)."""
+        return self._map
+
+    @property
+    def poses(self) -> NDArray[np.float64]:
+        """``(N, 3)`` the current poses (a read-only array; copy it to modify)."""
+        with self._guard:
+            return self._state.poses
+
+    def current_map(self) -> Map:
+        """The input map with the current poses (observation arrays shared with the input)."""
+        return dataclasses.replace(self._map, poses=self.poses.copy())
+
+    @property
+    def history(self) -> list[HistoryEntry]:
+        """Every requested correction in order, with its status."""
+        with self._guard:
+            return [e.snapshot() for e in self._state.entries]
+
+    @property
+    def active(self) -> list[Interpretation]:
+        """The interpretations of the applied corrections, in the order they were applied."""
+        with self._guard:
+            return self._state.active()
+
+    @property
+    def corrections(self) -> list[DrawnCorrection]:
+        """The raw input of the applied corrections, in order."""
+        with self._guard:
+            return [e.drawn for e in self._state.applied]
+
+    @property
+    def can_undo(self) -> bool:
+        with self._guard:
+            return bool(self._state.applied)
+
+    @property
+    def can_redo(self) -> bool:
+        with self._guard:
+            return bool(self._state.redo)
+
+    # -- editing ----------------------------------------------------------------------------
+
+    def correct(
+        self, a: Any, b: Any, mode: Mode | str, *, sigma_h: float | None = None
+    ) -> CorrectionOutcome:
+        """Apply the correction drawn as segments ``a`` and ``b`` (two ``[x, y]`` endpoints each,
+        world frame, metres) with ``mode``; see :meth:`apply`."""
+        return self.apply(DrawnCorrection.make(a, b, mode, sigma_h))
+
+    def apply(self, drawn: DrawnCorrection) -> CorrectionOutcome:
+        """Apply one correction on the map as it stands, dropping anything undone.
+
+        Order: the request is journaled, then computed, then the outcome journaled (with the new
+        poses as a checkpoint), and only then does the session's map change.
+
+        Raises:
+            CorrectionRejected: the drawing cannot be interpreted; only the rejection is journaled.
+            SolverError: the solve failed; the request is journaled as interrupted.
+        """
+        with self._operation:
+            self._check_open()
+            apply = self._applier if self._applier is not None else _default_applier()
+            self._record(EventKind.REQUEST, {"correction": drawn.to_json()})
+            with self._guard:
+                pending = self._state.pending
+                assert pending is not None
+                before = self._state.poses
+                active = self._state.active()
+            seq = pending.seq
+            try:
+                outcome = apply(self._map, before, drawn, active, self._config)
+                after = _checked_poses(outcome.poses, before.shape)
+                interpretation = outcome.interpretation.to_json()
+                stats = _stats(before, after, outcome)
+            except CorrectionRejected as exc:
+                self._record(
+                    EventKind.REJECTION,
+                    {"request": seq, "reason": str(exc), "correction": drawn.to_json()},
+                )
+                raise
+            except BaseException as exc:
+                self._interrupt(seq, f"{type(exc).__name__}: {exc}")
+                raise
+            try:
+                self._record(
+                    EventKind.CORRECTION,
+                    {"request": seq, "interpretation": interpretation, "stats": stats.to_json()},
+                    after,
+                )
+            except BaseException:
+                with self._guard:
+                    self._state.close_pending("the result could not be journaled")
+                raise
+            return outcome
+
+    def undo(self) -> HistoryEntry:
+        """Undo the last applied correction: the map returns exactly to what it was before it.
+
+        Raises:
+            InputError: nothing to undo.
+        """
+        return self._step(EventKind.UNDO)
+
+    def redo(self) -> HistoryEntry:
+        """Redo the last undone correction (its stored result; nothing is recomputed).
+
+        Raises:
+            InputError: nothing to redo.
+        """
+        return self._step(EventKind.REDO)
+
+    def _step(self, kind: EventKind) -> HistoryEntry:
+        with self._operation:
+            self._check_open()
+            with self._guard:
+                stack = self._state.applied if kind is EventKind.UNDO else self._state.redo
+                if not stack:
+                    raise InputError(f"nothing to {kind.value}")
+                entry = stack[-1]
+            self._record(kind, {"request": entry.seq})
+            return entry.snapshot()
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Export the current map to ``path`` (format from its extension, see
+        :func:`hitl_slam.io.export.export`), then journal a ``save`` event."""
+        from hitl_slam.io.export import export
+
+        with self._operation:
+            self._check_open()
+            export(self._map, self.poses.copy(), path)
+            target = os.path.abspath(os.fspath(path))
+            self._record(
+                EventKind.SAVE, {"path": target, "format": os.path.splitext(target)[1].lower()}
+            )
+
+    def export_corrections(self, path: str | os.PathLike[str]) -> int:
+        """Write the applied corrections, in order, as a JSON Lines corrections file (atomic),
+        replayable by ``hitl-slam correct``. Returns how many were written."""
+        from hitl_slam.corrections_file import write_corrections
+
+        corrections = self.corrections
+        write_corrections(path, corrections)
+        return len(corrections)
+
+    def write_journal(self, path: str | os.PathLike[str]) -> None:
+        """Copy the whole session (map, configuration, journal) to a NEW file ``path``, e.g. to
+        keep an in-memory session. Atomic; an existing file is never overwritten."""
+        with self._operation:
+            self._check_open()
+            self._journal.backup_to(path)
+
+    def replay(self, applier: Applier | None = None) -> tuple[NDArray[np.float64], list[Any]]:
+        """Recompute the applied corrections from the input poses, from scratch, to verify the
+        stored result. Changes nothing. Returns the final poses and each step's outcome; with the
+        same build the poses equal :attr:`poses` bit for bit."""
+        apply = applier or self._applier
+        return apply_in_order(self._map, self.corrections, self._config, apply)
+
+    # -- plumbing ---------------------------------------------------------------------------
+
+    def _record(
+        self,
+        kind: EventKind,
+        payload: dict[str, Any],
+        poses: NDArray[np.float64] | None = None,
+    ) -> None:
+        """Journal first (committed), then change the state in memory."""
+        event = self._journal.append(kind, payload, poses)
+        if poses is not None:
+            # The checkpoint in memory is the very array that was written, not a recomputation.
+            event = dataclasses.replace(event, poses=poses)
+        with self._guard:
+            self._state.apply(event)
+
+    def _interrupt(self, seq: int, reason: str) -> None:
+        try:
+            self._record(EventKind.INTERRUPTED, {"request": seq, "reason": reason})
+        except Exception:
+            # The journal is unwritable too; the request stays unanswered there, which reads back
+            # as interrupted, and memory says the same.
+            with self._guard:
+                self._state.close_pending(reason)
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise InputError("the session is closed; open the session file again")
+
+    def close(self) -> None:
+        """Close the journal (idempotent); waits for a correction being computed to finish.
+        Everything was already committed."""
+        with self._operation:
+            with contextlib.suppress(Exception):
+                self._journal.close()
+            self._closed = True
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def __enter__(self) -> Session:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
