@@ -60,8 +60,8 @@ class Config:
     average_points: bool = False
     # solver for corrections
     max_iterations: int = 50
-    relative_tolerance: float = 1e-9
-    absolute_tolerance: float = 1e-9
+    relative_tolerance: float = 1e-6
+    absolute_tolerance: float = 1e-6
     # §6 metric / occupancy export
     grid_resolution: float = 0.05  # [m]
 

@@ -97,6 +97,13 @@ def _observations(map: Map, rows: NDArray[np.int64]) -> tuple[NDArray[np.int64],
     return poses, points
 
 
+def _to_world(poses: FloatArray, owners: NDArray[np.int64], points: FloatArray) -> FloatArray:
+    p = poses[owners]
+    c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
+    x, y = points[:, 0], points[:, 1]
+    return np.stack([c * x - s * y + p[:, 0], s * x + c * y + p[:, 1]], axis=1)
+
+
 def solve_all(
     map: Map,
     active: Sequence[Interpretation],
@@ -108,7 +115,6 @@ def solve_all(
     x0 = np.ascontiguousarray(map.poses if start is None else start, dtype=np.float64)
     engine = _core.Graph(x0.shape[0], map.edges, map.measurements, map.information, map.anchor)
     lines = []
-    world = map.world_points(x0) if active else np.empty((0, 2))
     for h in active:
         a_poses, a_points = _observations(map, h.s_a)
         b_poses, b_points = _observations(map, h.s_b)
@@ -123,8 +129,8 @@ def solve_all(
             k2=config.k2,
             average_points=config.average_points,
         )
-        lines.append(fit_line(world[map.offsets[a_poses] + h.s_a[:, 1]]))
-        lines.append(fit_line(world[map.offsets[b_poses] + h.s_b[:, 1]]))
+        lines.append(fit_line(_to_world(x0, a_poses, a_points)))
+        lines.append(fit_line(_to_world(x0, b_poses, b_points)))
     line_values = np.array(lines, dtype=np.float64).reshape(-1, 2)
     poses, solved_lines, report = engine.optimize_with_lines(
         x0,

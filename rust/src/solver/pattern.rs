@@ -91,34 +91,54 @@ impl SparsityPattern {
             ));
         }
 
-        // 2. Block adjacency (both directions, no diagonal) as CSR, from one sorted pair list.
-        let mut pairs: Vec<(usize, usize)> = Vec::new();
-        let mut bs: Vec<usize> = Vec::new();
-        for f in factors {
-            bs.clear();
-            bs.extend(
+        // 2. Block adjacency (both directions, no diagonal) as CSR: through the block -> factor
+        //    incidence, with a marker per block instead of a global sort (human corrections add
+        //    factors over dozens of poses, whose pair lists would dominate).
+        let factor_blocks: Vec<Vec<usize>> = factors
+            .iter()
+            .map(|f| {
                 f.keys()
                     .iter()
                     .map(|&k| block_of(&natural_pose, &natural_line, k))
-                    .filter(|&b| b != NO_BLOCK),
-            );
-            for (x, &a) in bs.iter().enumerate() {
-                for &b in &bs[x + 1..] {
-                    pairs.push((a, b));
-                    pairs.push((b, a));
-                }
+                    .filter(|&b| b != NO_BLOCK)
+                    .collect()
+            })
+            .collect();
+        let mut inc_ptr = vec![0usize; nb + 1];
+        for bs in &factor_blocks {
+            for &b in bs {
+                inc_ptr[b + 1] += 1;
             }
         }
-        pairs.sort_unstable();
-        pairs.dedup();
-        let mut adj_ptr = vec![0usize; nb + 1];
-        for &(a, _) in &pairs {
-            adj_ptr[a + 1] += 1;
-        }
         for b in 0..nb {
-            adj_ptr[b + 1] += adj_ptr[b];
+            inc_ptr[b + 1] += inc_ptr[b];
         }
-        let adj_idx: Vec<usize> = pairs.iter().map(|&(_, b)| b).collect();
+        let mut fill = inc_ptr.clone();
+        let mut inc_idx = vec![0usize; inc_ptr[nb]];
+        for (fi, bs) in factor_blocks.iter().enumerate() {
+            for &b in bs {
+                inc_idx[fill[b]] = fi;
+                fill[b] += 1;
+            }
+        }
+        let mut mark = vec![NO_BLOCK; nb];
+        let mut adj_ptr = Vec::with_capacity(nb + 1);
+        let mut adj_idx = Vec::new();
+        adj_ptr.push(0usize);
+        for a in 0..nb {
+            mark[a] = a;
+            let begin = adj_idx.len();
+            for &fi in &inc_idx[inc_ptr[a]..inc_ptr[a + 1]] {
+                for &b in &factor_blocks[fi] {
+                    if mark[b] != a {
+                        mark[b] = a;
+                        adj_idx.push(b);
+                    }
+                }
+            }
+            adj_idx[begin..].sort_unstable();
+            adj_ptr.push(adj_idx.len());
+        }
         let perm_fwd = block_amd(nb, &adj_ptr, &adj_idx)?;
         let mut perm_inv = vec![0usize; nb];
         for (new, &old) in perm_fwd.iter().enumerate() {
@@ -148,20 +168,24 @@ impl SparsityPattern {
         //    the upper triangle of its own diagonal block. Every scalar column of C has the same
         //    block rows, so `row_start[C][x]` (offset of the x-th block row within a column) is
         //    shared by all of them.
-        let mut upper: Vec<(usize, usize)> = pairs
-            .iter()
-            .map(|&(a, b)| (perm_inv[a], perm_inv[b]))
-            .filter(|&(c, r)| r < c)
-            .collect();
-        upper.sort_unstable();
         let mut upper_ptr = vec![0usize; nb + 1];
-        for &(c, _) in &upper {
-            upper_ptr[c + 1] += 1;
+        let mut upper_idx: Vec<usize> = Vec::with_capacity(adj_idx.len() / 2);
+        {
+            let mut rows: Vec<usize> = Vec::new();
+            for c in 0..nb {
+                let old = perm_fwd[c];
+                rows.clear();
+                rows.extend(
+                    adj_idx[adj_ptr[old]..adj_ptr[old + 1]]
+                        .iter()
+                        .map(|&o| perm_inv[o])
+                        .filter(|&r| r < c),
+                );
+                rows.sort_unstable();
+                upper_idx.extend_from_slice(&rows);
+                upper_ptr[c + 1] = upper_idx.len();
+            }
         }
-        for c in 0..nb {
-            upper_ptr[c + 1] += upper_ptr[c];
-        }
-        let upper_idx: Vec<usize> = upper.iter().map(|&(_, r)| r).collect();
         let mut col_ptr = Vec::with_capacity(n + 1);
         let mut row_idx = Vec::new();
         col_ptr.push(0);

@@ -1,0 +1,467 @@
+"""CARMEN laser logs (``.clf``, ``.log``, optionally ``.gz``/``.bz2``) into a :class:`Map`.
+
+Reads ``FLASER`` or ``ROBOTLASER1`` scans with their poses and ipc timestamps, and the ``PARAM``
+lines that describe the laser; turns every valid beam into a point with one numpy pass.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hitl_slam.config import DEFAULT, Config
+from hitl_slam.errors import InputError
+from hitl_slam.io.textfile import PathLike, input_error, parse_int, read_lines
+from hitl_slam.map import Map
+
+__all__ = ["DEFAULT_MAX_RANGE", "PoseSource", "read_carmen"]
+
+_log = logging.getLogger(__name__)
+
+DEFAULT_MAX_RANGE = 80.0
+"""[m] FLASER maximum range when no ``PARAM robot_front_laser_max`` says otherwise (CARMEN's own
+default for the old laser messages)."""
+
+_MAX_RANGE_MARGIN = 1e-3  # [m] a beam within this of the maximum range is a max-range reading
+_FIX_LINE = "fix the line or delete it"
+_FLASER_TAIL = ("x", "y", "theta", "odom_x", "odom_y", "odom_theta", "ipc_timestamp")
+
+# PARAM names read (CARMEN robot module): the front laser's mounting on the robot and its range.
+_OFFSET_PARAMS = (
+    "robot_frontlaser_offset",  # [m] forward
+    "robot_frontlaser_side_offset",  # [m] to the left
+    "robot_frontlaser_angular_offset",  # [rad]
+)
+_MAX_RANGE_PARAM = "robot_front_laser_max"
+
+
+class PoseSource(enum.Enum):
+    """Which pose of a laser line becomes the map's pose."""
+
+    LOGGED = "logged"
+    """The laser pose the log carries (``x y theta`` of FLASER, ``laser_pose`` of ROBOTLASER1):
+    raw odometry in a raw log, the corrected pose in a corrected one."""
+    ODOMETRY = "odometry"
+    """The robot's odometry (``odom_*`` of FLASER, ``robot_pose`` of ROBOTLASER1) composed with
+    the laser offset from the ``PARAM`` lines."""
+
+
+@dataclass
+class _Scans:
+    """What the line loop collects, one entry per laser line."""
+
+    lines: list[int]
+    ranges: list[NDArray[np.float64]]
+    beam_config: list[tuple[int, float, float]]  # (n, start angle, angular step)
+    max_range: list[float]  # nan: the FLASER default (PARAM or 80 m)
+    logged: list[NDArray[np.float64]]
+    robot: list[NDArray[np.float64]]
+    stamps: list[float]
+
+
+def read_carmen(
+    path: PathLike,
+    *,
+    pose_source: PoseSource = PoseSource.LOGGED,
+    max_range: float | None = None,
+    config: Config = DEFAULT,
+    min_travel: float = 0.0,
+    min_rotation: float = 0.0,
+) -> Map:
+    """Read a CARMEN log into a :class:`Map` with one pose per kept laser scan.
+
+    Frames: a map pose is the pose of the LASER (``t_world_laser``), and the points are in the
+    laser frame, so the sensor origin is the pose position (ALGORITHM.md §1) and the Map's
+    "robot frame" is the laser frame. CARMEN already logs the laser pose in the pose fields of
+    FLASER (``x y theta``; ``odom_*`` is the robot's odometry) and ROBOTLASER1 (``laser_pose``),
+    i.e. the robot pose composed with ``PARAM robot_frontlaser_offset`` (fr079.clf: ``x y`` =
+    ``odom_x odom_y`` + -0.04 m along the heading), so ``PoseSource.LOGGED`` uses those fields
+    as they are. ``PoseSource.ODOMETRY`` composes the robot odometry (FLASER ``odom_*``,
+    ROBOTLASER1 ``robot_pose``) with the laser offset ``(robot_frontlaser_offset,
+    robot_frontlaser_side_offset, robot_frontlaser_angular_offset)`` from the ``PARAM`` lines
+    (0 when absent; the last value in the file wins). Relative poses between scans (the
+    ``.relations`` ground truth) therefore compare directly with the map's poses.
+
+    Beams: FLASER beams cover 180 degrees from -90 degrees, spaced 180/n degrees, or 180/(n-1)
+    for n = 181 or 361; ROBOTLASER1 carries its own start angle and angular resolution. A beam
+    is a point unless its range is non-finite, ``<= 0``, or ``>= max_range - 1e-3`` (a max-range
+    reading). ``max_range`` (m) overrides every line's; when None, ROBOTLASER1 uses its own field
+    and FLASER uses ``PARAM robot_front_laser_max``, else 80 m.
+
+    Lines: if the log has ROBOTLASER1 lines they are the scans and FLASER lines (the same scans in
+    the old format) are skipped; otherwise the FLASER lines are. Other tags (ODOM, RLASER,
+    RAWLASER*, TRUEPOS, NEFF, ...) are counted in ``map.metadata["skipped_lines"]`` and logged.
+    Timestamps are the ipc timestamps. Edges: the consecutive-pose chain with the §1 motion model.
+
+    Subsampling: with ``min_travel > 0`` (m) or ``min_rotation > 0`` (rad), a scan is kept only
+    when the pose moved at least ``min_travel`` or turned at least ``min_rotation`` since the
+    last kept scan (the first scan is always kept); with both 0 every scan is kept.
+
+    Raises:
+        InputError: ``{path}:{line}: what; what to do`` for a bad line (field count for the
+            declared number of beams, bad or non-finite number), an empty log, or a log
+            without laser lines.
+    """
+    name = os.fspath(path)
+    if not isinstance(pose_source, PoseSource):
+        raise InputError(f"pose_source must be a PoseSource, got {pose_source!r}")
+    for label, value in (("min_travel", min_travel), ("min_rotation", min_rotation)):
+        if not math.isfinite(value) or value < 0:
+            raise InputError(f"{label} must be a finite number >= 0, got {value!r}")
+    if max_range is not None and not (math.isfinite(max_range) and max_range > 0):
+        raise InputError(f"max_range must be a finite number > 0 (metres), got {max_range!r}")
+
+    lines = read_lines(name)
+    params, has_robotlaser, skipped = _scan_tags(name, lines)
+    laser_tag = "ROBOTLASER1" if has_robotlaser else "FLASER"
+    scans = _parse_lasers(name, lines, laser_tag)
+    if not scans.lines:
+        raise _no_lasers(name, lines, skipped)
+
+    offset = np.array([params.get(p, 0.0) for p in _OFFSET_PARAMS])
+    if pose_source is PoseSource.LOGGED:
+        poses = np.array(scans.logged)
+    else:
+        poses = _compose(np.array(scans.robot), offset)
+    poses[:, 2] = _wrap(poses[:, 2])
+    keep = _subsample(poses, min_travel, min_rotation)
+
+    flaser_max = params.get(_MAX_RANGE_PARAM, DEFAULT_MAX_RANGE)
+    kept = np.flatnonzero(keep)
+    per_scan_max = np.array(scans.max_range)[kept]
+    per_scan_max = np.where(np.isnan(per_scan_max), flaser_max, per_scan_max)
+    if max_range is not None:
+        per_scan_max[:] = max_range
+    points, counts = _beams_to_points(
+        [scans.ranges[k] for k in kept], [scans.beam_config[k] for k in kept], per_scan_max
+    )
+    if skipped:
+        shown = ", ".join(f"{tag} x{count}" for tag, count in sorted(skipped.items()))
+        _log.info("%s: lines skipped by tag: %s", name, shown)
+    split = np.split(points, np.cumsum(counts)[:-1]) if len(kept) else []
+    result = Map.from_poses_and_scans(
+        poses[kept],
+        split,
+        timestamps=np.array(scans.stamps)[kept],
+        config=config,
+        name=_stem(name),
+        source=name,
+    )
+    result.metadata.update(
+        {
+            "format": "carmen",
+            "laser": laser_tag,
+            "pose_source": pose_source.value,
+            "pose_frame": "laser",
+            "laser_offset": offset.tolist(),
+            "max_range": max_range,
+            "flaser_max_range": flaser_max,
+            "scans_in_log": len(scans.lines),
+            "scan_lines": np.array(scans.lines, dtype=np.int64)[kept],
+            "skipped_lines": dict(skipped),
+        }
+    )
+    return result
+
+
+def _stem(name: str) -> str:
+    base = os.path.basename(name)
+    for suffix in (".gz", ".bz2"):
+        base = base.removesuffix(suffix)
+    root, extension = os.path.splitext(base)
+    return root if extension.lower() in (".clf", ".log") else base
+
+
+def _wrap(theta: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Angles to (-pi, pi]."""
+    wrapped = np.mod(theta + math.pi, 2 * math.pi) - math.pi
+    return np.where(wrapped <= -math.pi, wrapped + 2 * math.pi, wrapped)
+
+
+def _compose(poses: NDArray[np.float64], offset: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``poses ∘ offset`` row by row (offset in the frame of each pose)."""
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    return np.stack(
+        [
+            poses[:, 0] + c * offset[0] - s * offset[1],
+            poses[:, 1] + s * offset[0] + c * offset[1],
+            poses[:, 2] + offset[2],
+        ],
+        axis=1,
+    )
+
+
+def _subsample(
+    poses: NDArray[np.float64], min_travel: float, min_rotation: float
+) -> NDArray[np.bool_]:
+    keep = np.ones(len(poses), dtype=bool)
+    if min_travel <= 0 and min_rotation <= 0:
+        return keep
+    last = poses[0]
+    for k in range(1, len(poses)):
+        pose = poses[k]
+        moved = math.hypot(pose[0] - last[0], pose[1] - last[1])
+        turned = abs(math.remainder(pose[2] - last[2], 2 * math.pi))
+        if (min_travel > 0 and moved >= min_travel) or (
+            min_rotation > 0 and turned >= min_rotation
+        ):
+            last = pose
+        else:
+            keep[k] = False
+    return keep
+
+
+def _tag(line: str) -> str:
+    head = line.split(None, 1)
+    return head[0] if head else ""
+
+
+def _scan_tags(name: str, lines: Sequence[str]) -> tuple[dict[str, float], bool, dict[str, int]]:
+    """The laser PARAMs, whether any ROBOTLASER1 line exists, and counts of skipped tags."""
+    params: dict[str, float] = {}
+    tags: dict[str, int] = {}
+    for number, line in enumerate(lines, 1):
+        tag = _tag(line)
+        if not tag or tag.startswith("#"):
+            continue
+        tags[tag] = tags.get(tag, 0) + 1
+        if tag != "PARAM":
+            continue
+        tokens = line.split()
+        if len(tokens) >= 3 and (tokens[1] in _OFFSET_PARAMS or tokens[1] == _MAX_RANGE_PARAM):
+            value = _floats(name, number, tokens[2:3], (tokens[1],), "PARAM")[0]
+            if tokens[1] == _MAX_RANGE_PARAM and value <= 0:
+                raise input_error(
+                    name,
+                    number,
+                    f"{_MAX_RANGE_PARAM} is {tokens[2]}, not a positive range",
+                    _FIX_LINE,
+                )
+            params[tokens[1]] = value
+    has_robotlaser = "ROBOTLASER1" in tags
+    laser = "ROBOTLASER1" if has_robotlaser else "FLASER"
+    skipped = {t: c for t, c in tags.items() if t not in (laser, "PARAM")}
+    return params, has_robotlaser, skipped
+
+
+def _no_lasers(name: str, lines: Sequence[str], skipped: dict[str, int]) -> InputError:
+    if not skipped:
+        return input_error(
+            name,
+            None,
+            "empty log (no CARMEN message lines)",
+            "give a CARMEN log with FLASER or ROBOTLASER1 lines",
+        )
+    found = ", ".join(f"{tag} x{count}" for tag, count in sorted(skipped.items())[:10])
+    return input_error(
+        name,
+        None,
+        f"no laser lines (FLASER or ROBOTLASER1) in the log; found {found}",
+        "a map needs laser scans: give a log recorded with the laser on",
+    )
+
+
+def _bad_number(
+    name: str, line: int, tokens: Sequence[str], names: Sequence[str], tag: str, first: int
+) -> InputError:
+    for k, token in enumerate(tokens):
+        try:
+            float(token)
+        except ValueError:
+            return input_error(
+                name,
+                line,
+                f"bad number {token!r} for {names[k]} (field {first + k} of {tag})",
+                "write a decimal number such as 1.5 or -2e-3",
+            )
+    return input_error(name, line, f"unreadable numbers in {tag}", _FIX_LINE)  # pragma: no cover
+
+
+def _floats(
+    name: str, line: int, tokens: Sequence[str], names: Sequence[str], tag: str, first: int = 2
+) -> NDArray[np.float64]:
+    """Finite float64 values of ``tokens`` (fields ``first..`` of the line, tag = field 0)."""
+    try:
+        values = np.array(tokens, dtype=np.float64)
+    except ValueError:
+        raise _bad_number(name, line, tokens, names, tag, first) from None
+    bad = ~np.isfinite(values)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise input_error(
+            name,
+            line,
+            f"{names[k]} is {tokens[k]!r} (field {first + k} of {tag}): NaN/inf",
+            "replace it with a finite number or delete the line",
+        )
+    return values
+
+
+def _ranges(
+    name: str, line: int, tokens: Sequence[str], tag: str, first: int
+) -> NDArray[np.float64]:
+    """Beam ranges; non-finite ones are allowed here (invalid beams, not points)."""
+    try:
+        return np.array(tokens, dtype=np.float64)
+    except ValueError:
+        names = [f"range {k + 1}" for k in range(len(tokens))]
+        raise _bad_number(name, line, tokens, names, tag, first) from None
+
+
+def _count(name: str, line: int, token: str, what: str, tag: str) -> int:
+    value = parse_int(name, line, token, f"{what} of {tag}")
+    if value < 0 or (what == "number of beams" and value == 0):
+        raise input_error(name, line, f"{what} of {tag} is {value}", "it must be positive")
+    return value
+
+
+def _flaser_geometry(n: int) -> tuple[float, float]:
+    """Start angle and spacing [rad] of an n-beam FLASER scan (FORMATS.md)."""
+    spacing = math.pi / (n - 1) if n in (181, 361) else math.pi / n
+    return -0.5 * math.pi, spacing
+
+
+def _parse_lasers(name: str, lines: Sequence[str], laser_tag: str) -> _Scans:
+    scans = _Scans([], [], [], [], [], [], [])
+    for number, line in enumerate(lines, 1):
+        if _tag(line) != laser_tag:
+            continue
+        tokens = line.split()
+        if laser_tag == "FLASER":
+            _parse_flaser(name, number, tokens, scans)
+        else:
+            _parse_robotlaser(name, number, tokens, scans)
+    return scans
+
+
+def _parse_flaser(name: str, number: int, tokens: list[str], scans: _Scans) -> None:
+    # FLASER n r_1 .. r_n x y theta odom_x odom_y odom_theta ipc_timestamp ipc_hostname
+    # logger_timestamp (CARMEN logger header; x y theta is the laser pose, odom_* the robot's).
+    if len(tokens) < 2:
+        raise input_error(name, number, "FLASER without a number of beams", _FIX_LINE)
+    n = _count(name, number, tokens[1], "number of beams", "FLASER")
+    if len(tokens) != n + 11:
+        raise input_error(
+            name,
+            number,
+            f"FLASER with {n} beams needs {n + 10} fields after the tag (n, {n} ranges, x y theta "
+            f"odom_x odom_y odom_theta, ipc_timestamp, ipc_hostname, logger_timestamp), "
+            f"got {len(tokens) - 1}",
+            "check the number of beams against the ranges, or delete the line",
+        )
+    ranges = _ranges(name, number, tokens[2 : 2 + n], "FLASER", 2)
+    tail = _floats(name, number, tokens[2 + n : 9 + n], _FLASER_TAIL, "FLASER", 2 + n)
+    start, step = _flaser_geometry(n)
+    scans.lines.append(number)
+    scans.ranges.append(ranges)
+    scans.beam_config.append((n, start, step))
+    scans.max_range.append(math.nan)
+    scans.logged.append(tail[0:3])
+    scans.robot.append(tail[3:6])
+    scans.stamps.append(float(tail[6]))
+
+
+_RL_HEADER = (
+    "laser_type",
+    "start_angle",
+    "field_of_view",
+    "angular_resolution",
+    "maximum_range",
+    "accuracy",
+    "remission_mode",
+)
+_RL_TAIL = (
+    "laser_pose_x",
+    "laser_pose_y",
+    "laser_pose_theta",
+    "robot_pose_x",
+    "robot_pose_y",
+    "robot_pose_theta",
+    "tv",
+    "rv",
+    "forward_safety_dist",
+    "side_safety_dist",
+    "turn_axis",
+    "ipc_timestamp",
+)
+
+
+def _parse_robotlaser(name: str, number: int, tokens: list[str], scans: _Scans) -> None:
+    # Layout, as CARMEN's logger writes it (carmen_logwrite_write_robot_laser in
+    # logtools/writelog.c) and reads it (carmen_string_to_robot_laser_message in readlog.c):
+    # ROBOTLASER1 laser_type start_angle field_of_view angular_resolution maximum_range accuracy
+    # remission_mode num_readings [range_readings] num_remissions [remission_values]
+    # laser_pose_x laser_pose_y laser_pose_theta robot_pose_x robot_pose_y robot_pose_theta
+    # tv rv forward_safety_dist side_safety_dist turn_axis ipc_timestamp ipc_hostname
+    # logger_timestamp
+    usage = "check the line against the ROBOTLASER1 layout, or delete the line"
+    if len(tokens) < 9:
+        raise input_error(
+            name, number, f"ROBOTLASER1 too short ({len(tokens) - 1} fields after the tag)", usage
+        )
+    header = _floats(name, number, tokens[1:8], _RL_HEADER, "ROBOTLASER1", 1)
+    n = _count(name, number, tokens[8], "number of beams", "ROBOTLASER1")
+    if len(tokens) < 10 + n:
+        raise input_error(
+            name, number, f"ROBOTLASER1 declares {n} beams but the line ends before them", usage
+        )
+    m = _count(name, number, tokens[9 + n], "num_remissions", "ROBOTLASER1")
+    want = 10 + n + m + len(_RL_TAIL) + 2
+    if len(tokens) != want:
+        raise input_error(
+            name,
+            number,
+            f"ROBOTLASER1 with {n} beams and {m} remissions needs {want - 1} fields after the tag, "
+            f"got {len(tokens) - 1}",
+            usage,
+        )
+    ranges = _ranges(name, number, tokens[9 : 9 + n], "ROBOTLASER1", 9)
+    first_tail = 10 + n + m
+    tail = _floats(
+        name, number, tokens[first_tail : first_tail + 12], _RL_TAIL, "ROBOTLASER1", first_tail
+    )
+    if header[4] <= 0:
+        raise input_error(
+            name, number, f"ROBOTLASER1 maximum_range is {tokens[5]}", "it must be positive"
+        )
+    scans.lines.append(number)
+    scans.ranges.append(ranges)
+    scans.beam_config.append((n, float(header[1]), float(header[3])))
+    scans.max_range.append(float(header[4]))
+    scans.logged.append(tail[0:3])
+    scans.robot.append(tail[3:6])
+    scans.stamps.append(float(tail[11]))
+
+
+def _beams_to_points(
+    ranges: list[NDArray[np.float64]],
+    configs: list[tuple[int, float, float]],
+    max_ranges: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """All scans at once: ``(P, 2)`` laser-frame points and the number of points per scan."""
+    if not ranges:
+        return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
+    cache: dict[tuple[int, float, float], NDArray[np.float64]] = {}
+    angles: list[NDArray[np.float64]] = []
+    for key in configs:
+        if key not in cache:
+            n, start, step = key
+            cache[key] = start + step * np.arange(n, dtype=np.float64)
+        angles.append(cache[key])
+    r = np.concatenate(ranges)
+    a = np.concatenate(angles)
+    beams = np.array([len(x) for x in ranges], dtype=np.int64)
+    limit = np.repeat(max_ranges, beams) - _MAX_RANGE_MARGIN
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(r) & (r > 0) & (r < limit)
+    owner = np.repeat(np.arange(len(ranges)), beams)
+    counts = np.bincount(owner[valid], minlength=len(ranges)).astype(np.int64)
+    rv, av = r[valid], a[valid]
+    return np.stack([rv * np.cos(av), rv * np.sin(av)], axis=1), counts

@@ -1,0 +1,293 @@
+"""The original HitL-SLAM ``.covars`` format: a map name, a timestamp, then one line per observation
+(pose, world point, world normal, pose covariance). Read into a :class:`Map` (points and normals in
+the robot frame) and written back exactly, atomically.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import re
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from hitl_slam.config import DEFAULT, Config
+from hitl_slam.errors import InputError
+from hitl_slam.io.atomic import atomic_writer
+from hitl_slam.io.textfile import PathLike, input_error, read_lines
+from hitl_slam.map import Map
+
+__all__ = ["COVARS_FIELDS", "read_covars", "write_covars"]
+
+_log = logging.getLogger(__name__)
+
+COVARS_FIELDS = (
+    "pose_x",
+    "pose_y",
+    "pose_theta",
+    "obs_x",
+    "obs_y",
+    "normal_x",
+    "normal_y",
+    "C_xx",
+    "C_xy",
+    "C_xtheta",
+    "C_yx",
+    "C_yy",
+    "C_ytheta",
+    "C_thetax",
+    "C_thetay",
+    "C_thetatheta",
+)
+"""The 16 comma-separated numbers of an observation line, in order."""
+
+_NUMBER = re.compile(r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan|inf|infinity)", re.I)
+_USAGE = "16 comma-separated numbers: " + ", ".join(COVARS_FIELDS)
+
+
+def read_covars(path: PathLike, config: Config = DEFAULT) -> Map:
+    """Read a ``.covars`` file.
+
+    Layout (FORMATS.md): line 1 the map name, line 2 a timestamp, then one observation per line.
+    Consecutive lines with the same pose (bit-for-bit equal ``pose_x, pose_y, pose_theta``) are
+    one pose; a pose whose only observation lies exactly at its own position has no scan. Blank
+    lines are ignored. Points and normals are converted from the world frame to the robot frame
+    of their pose (``s = R(theta)^T (p - t)``); non-zero normals are scaled to unit length and a
+    zero normal means none (``map.normals`` is None when no observation has one).
+
+    Covariance: the 3x3 pose covariance, row-major, taken from each pose's first line. As the
+    original exporter wrote it, it is assumed to be in the robot frame of its pose, which is the
+    frame of the chain edge leaving that pose, so it is used as is: edge (i, i+1) gets the
+    information ``(C_i + C_{i+1})^-1`` when that is symmetric positive definite, otherwise the
+    §1 motion model (``map.information_source`` says which). An all-zero covariance means
+    unknown, and both edges touching that pose use the motion model. The covariances as read are
+    kept in ``map.metadata["pose_covariances"]`` (``(N, 3, 3)``, zeros = unknown) and the
+    timestamp in ``map.metadata["covars_timestamp"]``, so :func:`write_covars` reproduces them.
+
+    Raises:
+        InputError: ``{path}:{line}: what; what to do`` for a missing name or timestamp, a line
+            without 16 numbers, a bad or non-finite number, or a file without observations.
+    """
+    name = os.fspath(path)
+    lines = read_lines(name)
+    while lines and not lines[-1].strip():
+        lines.pop()
+    todo = "a .covars file starts with a map name line and a timestamp line, then observations"
+    if not lines:
+        raise input_error(name, None, "empty file", todo)
+    map_name = lines[0].strip() or _stem(name)
+    if len(lines) < 2 or not lines[1].strip():
+        raise input_error(name, 2, "missing the timestamp line", todo)
+    stamp_text = lines[1].strip()
+    try:
+        stamp = float(stamp_text) if _NUMBER.fullmatch(stamp_text) else math.nan
+    except ValueError:  # pragma: no cover - the pattern admits only what float() reads
+        stamp = math.nan
+    if not math.isfinite(stamp):
+        raise input_error(
+            name, 2, f"line 2 must be the timestamp (a finite number), got {stamp_text!r}", todo
+        )
+    numbers = [k for k in range(2, len(lines)) if lines[k].strip()]
+    if not numbers:
+        raise input_error(name, None, "no observation lines after the name and timestamp", todo)
+    rows = _parse_rows(name, lines, numbers)
+    return _build(name, rows, map_name, stamp, config)
+
+
+def _stem(name: str) -> str:
+    base = os.path.basename(name)
+    for suffix in (".gz", ".bz2"):
+        base = base.removesuffix(suffix)
+    return os.path.splitext(base)[0]
+
+
+def _parse_rows(name: str, lines: list[str], numbers: list[int]) -> NDArray[np.float64]:
+    """``(L, 16)`` values of the observation lines (0-based indices ``numbers`` into ``lines``)."""
+    texts = [lines[k] for k in numbers]
+    try:
+        # numpy's C parser: strict (no empty fields, no "1 2", no "1_000"), one row per line.
+        values = np.loadtxt(texts, delimiter=",", comments=None, dtype=np.float64, ndmin=2)
+        if values.shape[1] != 16:
+            raise ValueError(values.shape)
+    except ValueError:
+        # Something is wrong: find the first bad line and say what.
+        for k, text in zip(numbers, texts, strict=True):
+            _check_line(name, k + 1, text)
+        raise input_error(name, None, "unreadable observation lines", _fix()) from None
+    bad = ~np.isfinite(values)
+    if bad.any():
+        row, col = (int(v) for v in np.argwhere(bad)[0])
+        raise input_error(
+            name,
+            numbers[row] + 1,
+            f"{COVARS_FIELDS[col]} is {float(values[row, col])!r} (field {col + 1}): NaN/inf",
+            "replace it with a finite number or delete the line",
+        )
+    return values
+
+
+def _check_line(name: str, line: int, text: str) -> list[float]:
+    tokens = [t.strip() for t in text.split(",")]
+    if len(tokens) != 16:
+        raise input_error(name, line, f"expected {_USAGE}; got {len(tokens)} fields", _fix())
+    for k, token in enumerate(tokens):
+        if not _NUMBER.fullmatch(token):
+            raise input_error(
+                name,
+                line,
+                f"bad number {token!r} for {COVARS_FIELDS[k]} (field {k + 1})",
+                "write a decimal number such as 1.5 or -2e-3",
+            )
+    return [float(t) for t in tokens]
+
+
+def _fix() -> str:
+    return "fix the line or delete it"
+
+
+def _build(
+    name: str, rows: NDArray[np.float64], map_name: str, stamp: float, config: Config
+) -> Map:
+    pose_cols = rows[:, :3]
+    starts = np.flatnonzero(
+        np.concatenate([[True], np.any(pose_cols[1:] != pose_cols[:-1], axis=1)])
+    )
+    n = len(starts)
+    counts = np.diff(np.append(starts, len(rows)))
+    poses = pose_cols[starts].copy()
+    covariances = rows[starts, 7:16].reshape(n, 3, 3).copy()
+
+    owner = np.repeat(np.arange(n), counts)
+    c, s = np.cos(pose_cols[:, 2]), np.sin(pose_cols[:, 2])
+    dx, dy = rows[:, 3] - rows[:, 0], rows[:, 4] - rows[:, 1]
+    nx, ny = rows[:, 5], rows[:, 6]
+    points = np.stack([c * dx + s * dy, -s * dx + c * dy], axis=1)
+    normals = np.stack([c * nx + s * ny, -s * nx + c * ny], axis=1)
+    length = np.hypot(normals[:, 0], normals[:, 1])
+    has_normal = length > 0
+    normals[has_normal] /= length[has_normal, None]
+
+    # A pose with one observation exactly at its own position has no scan.
+    lone = counts == 1
+    at_pose = (rows[starts, 3] == rows[starts, 0]) & (rows[starts, 4] == rows[starts, 1])
+    empty = lone & at_pose
+    keep = ~empty[owner]
+    counts = np.where(empty, 0, counts)
+    points, normals = points[keep], normals[keep]
+    has_normal = has_normal[keep]
+
+    split_at = np.cumsum(counts)[:-1]
+    scans = np.split(points, split_at)
+    normal_list = np.split(normals, split_at) if has_normal.any() else None
+
+    poses[:, 2] = np.mod(poses[:, 2] + math.pi, 2 * math.pi) - math.pi
+    poses[poses[:, 2] <= -math.pi, 2] += 2 * math.pi
+    known = np.any(covariances != 0, axis=(1, 2))
+    usable = None
+    if known.any():
+        usable = covariances.copy()
+        usable[~known] = np.nan  # unknown: both neighbouring edges fall back to the motion model
+    result = Map.from_poses_and_scans(
+        poses,
+        scans,
+        covariances=usable,
+        normals=normal_list,
+        config=config,
+        name=map_name,
+        source=name,
+    )
+    result.metadata.update(
+        {
+            "format": "covars",
+            "covars_timestamp": stamp,
+            "pose_covariances": covariances,
+        }
+    )
+    if usable is not None:
+        fallback = int(np.count_nonzero(result.information_source != 0))
+        if fallback:
+            _log.info(
+                "%s: %d of %d edges use the motion model (unknown or non-SPD covariance)",
+                name,
+                fallback,
+                len(result.information_source),
+            )
+    return result
+
+
+def write_covars(map: Map, poses: ArrayLike, path: PathLike) -> None:
+    """Write ``map`` with ``poses`` (``(N, 3)``) as a ``.covars`` file, atomically.
+
+    Line 1 is ``map.name``, line 2 ``map.metadata["covars_timestamp"]`` (else the first pose
+    timestamp, else 0). Every point becomes a line with its pose, its world position under
+    ``poses`` and its world normal (zeros when it has none); a pose without points becomes one
+    line observing its own position. Covariances come from ``map.metadata["pose_covariances"]``
+    when it is an ``(N, 3, 3)`` array, else zeros (unknown). Floats are written with Python's
+    ``repr`` (the shortest text that reads back to the same double). Since the format has no pose
+    ids, a pose exactly equal to the one before it would merge with it on reading; such a pose is
+    written with its theta moved by one ulp so the file reads back with the same number of poses.
+
+    Raises:
+        InputError: ``poses`` of the wrong shape or not finite.
+    """
+    name = os.fspath(path)
+    out_poses = _checked_poses(map, poses)
+    n = map.num_poses
+    covariances = map.metadata.get("pose_covariances")
+    cov = np.zeros((n, 9))
+    if isinstance(covariances, np.ndarray) and covariances.shape == (n, 3, 3):
+        cov = covariances.reshape(n, 9).astype(np.float64)
+    stamp = map.metadata.get("covars_timestamp")
+    if not isinstance(stamp, float | int) or not math.isfinite(stamp):
+        stamp = float(map.timestamps[0]) if map.timestamps is not None else 0.0
+    world = map.world_points(out_poses)
+    normals = np.zeros_like(world) if map.normals is None else map.normals
+    c, s = np.cos(out_poses[map.pose_of_point(), 2]), np.sin(out_poses[map.pose_of_point(), 2])
+    world_normals = np.stack(
+        [c * normals[:, 0] - s * normals[:, 1], s * normals[:, 0] + c * normals[:, 1]], axis=1
+    )
+    written = _distinct_consecutive(out_poses)
+    title = " ".join(map.name.split()) or "map"
+    point_rows = np.hstack([world, world_normals]).tolist()
+    offsets = map.offsets.tolist()
+    with atomic_writer(name) as f:
+        f.write(f"{title}\n{float(stamp)!r}\n")
+        for i, (pose, cov_row) in enumerate(zip(written.tolist(), cov.tolist(), strict=True)):
+            head = ", ".join(_reprs(pose)) + ", "
+            tail = ", " + ", ".join(_reprs(cov_row)) + "\n"
+            start, stop = offsets[i], offsets[i + 1]
+            if start == stop:
+                f.write(f"{head}{pose[0]!r}, {pose[1]!r}, 0.0, 0.0{tail}")
+                continue
+            f.write(
+                "".join(
+                    f"{head}{x!r}, {y!r}, {nx!r}, {ny!r}{tail}"
+                    for x, y, nx, ny in point_rows[start:stop]
+                )
+            )
+
+
+def _reprs(values: list[float]) -> list[str]:
+    return [repr(v) for v in values]
+
+
+def _checked_poses(map: Map, poses: ArrayLike) -> NDArray[np.float64]:
+    out = np.ascontiguousarray(poses, dtype=np.float64)
+    if out.shape != (map.num_poses, 3):
+        raise InputError(
+            f"poses must have shape ({map.num_poses}, 3) for this map, got {out.shape}; "
+            "pass one (x, y, theta) row per pose of the map"
+        )
+    if not np.all(np.isfinite(out)):
+        raise InputError("poses contain NaN or inf; pass finite poses")
+    return out
+
+
+def _distinct_consecutive(poses: NDArray[np.float64]) -> NDArray[np.float64]:
+    out = poses.copy()
+    for i in range(1, len(out)):
+        while np.array_equal(out[i], out[i - 1]):
+            out[i, 2] = np.nextafter(out[i, 2], np.inf)
+    return out
