@@ -6,12 +6,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = [
+    "EmFit",
     "Graph",
     "IterationRecord",
     "SolveReport",
     "__version__",
     "backpropagate",
+    "em_fit",
+    "em_fit_scans",
     "explicit_transform",
+    "line_fit",
+    "segment_candidates",
     "wrap_angle",
 ]
 
@@ -165,3 +170,77 @@ class Graph:
         NDArray[np.float64],
         NDArray[np.int64],
     ]: ...
+
+@final
+class EmFit:
+    """EM's interpretation of one drawn segment (ALGORITHM.md §3). The line is
+    ``n . p = rho`` with ``n = (cos phi, sin phi)``, phi in (-pi/2, pi/2]; ``extent`` is its
+    ``(2, 2)`` endpoints; the observation set is ``candidates[weights > 0.5]``."""
+
+    @property
+    def candidates(self) -> NDArray[np.int64]: ...
+    @property
+    def weights(self) -> NDArray[np.float64]: ...
+    @property
+    def phi(self) -> float: ...
+    @property
+    def rho(self) -> float: ...
+    @property
+    def extent(self) -> NDArray[np.float64]: ...
+    @property
+    def iterations(self) -> int: ...
+    @property
+    def log_likelihood(self) -> float: ...
+    @property
+    def converged(self) -> bool: ...
+    @property
+    def mixing(self) -> float: ...
+    @property
+    def num_inliers(self) -> int: ...
+
+def em_fit(
+    world_points: NDArray[np.float64],
+    segments: NDArray[np.float64],
+    *,
+    band: float,
+    sigma_em: float,
+    pi0: float,
+    tol_m: float,
+    tol_rad: float,
+    tol_pi: float,
+    max_iterations: int,
+) -> list[EmFit]:
+    """EM for each segment ``(S, 2, 2)`` over ``world_points`` ``(P, 2)``, one index for all."""
+
+def em_fit_scans(
+    poses: NDArray[np.float64],
+    points: NDArray[np.float64],
+    offsets: NDArray[np.int64],
+    segments: NDArray[np.float64],
+    *,
+    band: float,
+    sigma_em: float,
+    pi0: float,
+    tol_m: float,
+    tol_rad: float,
+    tol_pi: float,
+    max_iterations: int,
+) -> list[EmFit]:
+    """``em_fit`` on robot-frame ``points`` of a map (pose i owns ``offsets[i]:offsets[i+1]``)."""
+
+def segment_candidates(
+    world_points: NDArray[np.float64],
+    segment: NDArray[np.float64],
+    band: float,
+    *,
+    use_index: bool = True,
+) -> NDArray[np.int64]:
+    """Indices (ascending) of the points within ``band`` of the segment ``(2, 2)``."""
+
+def line_fit(
+    points: NDArray[np.float64],
+    weights: NDArray[np.float64],
+    segment: NDArray[np.float64],
+    band: float,
+) -> tuple[float, float, NDArray[np.float64]]:
+    """Weighted TLS line ``(phi, rho, extent)`` of ``points`` ``(K, 2)``."""

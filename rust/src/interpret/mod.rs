@@ -1,0 +1,382 @@
+//! Interpreting a drawn segment (ALGORITHM.md §3): a uniform-grid spatial index over the world
+//! points, the candidates within the band `r_c` of a segment, and the EM fit of the feature line
+//! (responsibilities, weighted total least squares, mixing weight, log-likelihood).
+//!
+//! Lines are undirected: every quantity here is computed in a frame built from the segment's
+//! midpoint and a canonical normal, so drawing a segment either way gives bit-identical results.
+//!
+//! Points cross this boundary as flat interleaved `x, y` slices (a C-contiguous `(P, 2)` numpy
+//! array as is), wrapped in [`Points`], so the Python layer never copies the map.
+
+mod em;
+mod grid;
+
+pub use em::{
+    em_fit, em_fit_scans, em_fit_segments, line_fit, log_likelihood, responsibilities, EmFit, EmParams, LineFit,
+    MAX_MIXING, MIN_MIXING,
+};
+pub use grid::{candidates, candidates_brute_force, GridIndex};
+
+use crate::error::{HitlError, Result};
+
+/// A point of the plane, `[x, y]`, world frame unless said otherwise.
+pub type Point = [f64; 2];
+
+/// Segments shorter than this (metres) have no direction; they are rejected.
+pub const MIN_SEGMENT_LENGTH: f64 = 1e-6;
+
+/// A borrowed `(P, 2)` array of points stored as `x0, y0, x1, y1, ...`.
+#[derive(Clone, Copy, Debug)]
+pub struct Points<'a> {
+    flat: &'a [f64],
+}
+
+impl<'a> Points<'a> {
+    /// Wraps an interleaved slice; its length must be even.
+    pub fn new(flat: &'a [f64]) -> Result<Self> {
+        if flat.len() % 2 != 0 {
+            return Err(HitlError::Input(format!(
+                "points must be (x, y) pairs, got {} numbers",
+                flat.len()
+            )));
+        }
+        Ok(Self { flat })
+    }
+
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.flat.len() / 2
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.flat.is_empty()
+    }
+
+    /// Point `i`, or None past the end.
+    #[inline]
+    pub fn get(&self, i: usize) -> Option<Point> {
+        let x = *self.flat.get(2 * i)?;
+        let y = *self.flat.get(2 * i + 1)?;
+        Some([x, y])
+    }
+
+    /// The points in order.
+    pub fn iter(&self) -> impl Iterator<Item = Point> + 'a {
+        self.flat.chunks_exact(2).map(|c| [c[0], c[1]])
+    }
+
+    /// Fails, naming the first offending row, unless every coordinate is finite.
+    pub fn check_finite(&self, what: &str) -> Result<()> {
+        match self
+            .iter()
+            .position(|p| !(p[0].is_finite() && p[1].is_finite()))
+        {
+            None => Ok(()),
+            Some(i) => Err(HitlError::Input(format!(
+                "{what} row {i} is not finite; remove or fix that point"
+            ))),
+        }
+    }
+}
+
+/// A segment drawn by a person, world frame. Its direction carries no meaning.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Segment {
+    pub a: Point,
+    pub b: Point,
+}
+
+impl Segment {
+    pub fn new(a: Point, b: Point) -> Self {
+        Self { a, b }
+    }
+}
+
+/// The axis-aligned bounding box of a point set.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Bounds {
+    pub min: Point,
+    pub max: Point,
+}
+
+impl Bounds {
+    /// Contains nothing; `add` grows it.
+    pub const EMPTY: Bounds = Bounds {
+        min: [f64::INFINITY; 2],
+        max: [f64::NEG_INFINITY; 2],
+    };
+
+    #[inline]
+    pub fn add(&mut self, p: Point) {
+        self.min = [self.min[0].min(p[0]), self.min[1].min(p[1])];
+        self.max = [self.max[0].max(p[0]), self.max[1].max(p[1])];
+    }
+
+    pub fn merge(self, other: Bounds) -> Bounds {
+        Bounds {
+            min: [self.min[0].min(other.min[0]), self.min[1].min(other.min[1])],
+            max: [self.max[0].max(other.max[0]), self.max[1].max(other.max[1])],
+        }
+    }
+
+    /// The bounds of `points`, failing (naming the row) on a non-finite coordinate.
+    pub fn of(points: Points<'_>) -> Result<Self> {
+        // Two interleaved accumulators halve the dependency chains of min/max.
+        let (mut even, mut odd) = (Bounds::EMPTY, Bounds::EMPTY);
+        let mut finite = true;
+        let mut pairs = points.flat.chunks_exact(4);
+        for c in &mut pairs {
+            finite &= c.iter().all(|v| v.is_finite());
+            even.add([c[0], c[1]]);
+            odd.add([c[2], c[3]]);
+        }
+        if let [x, y] = *pairs.remainder() {
+            finite &= x.is_finite() & y.is_finite();
+            even.add([x, y]);
+        }
+        if !finite {
+            points.check_finite("world point")?;
+        }
+        Ok(even.merge(odd))
+    }
+}
+
+/// World points and their bounds, from [`world_points`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct WorldPoints {
+    /// `(P, 2)` flat.
+    pub flat: Vec<f64>,
+    pub bounds: Bounds,
+}
+
+/// Points in the world frame: `p_world = R(theta_i) s + t_i` for each pose's scan, with their
+/// bounds computed in the same pass (so the grid needs no extra pass over the map).
+///
+/// `poses` is `(N, 3)` flat (x, y, theta), `points` `(P, 2)` robot-frame points pose by pose,
+/// and pose i owns rows `offsets[i]..offsets[i + 1]`.
+pub fn world_points(poses: &[f64], points: Points<'_>, offsets: &[i64]) -> Result<WorldPoints> {
+    let n = poses.len() / 3;
+    if poses.len() % 3 != 0 {
+        return Err(HitlError::Input(format!(
+            "poses must have shape (N, 3), got {} numbers",
+            poses.len()
+        )));
+    }
+    if offsets.len() != n + 1 {
+        return Err(HitlError::Input(format!(
+            "offsets must have N + 1 = {} entries, got {}",
+            n + 1,
+            offsets.len()
+        )));
+    }
+    if offsets.first().copied().unwrap_or(-1) != 0
+        || offsets.last().copied().unwrap_or(-1) != points.len() as i64
+    {
+        return Err(HitlError::Input(format!(
+            "offsets must run from 0 to the number of points ({})",
+            points.len()
+        )));
+    }
+    let mut out = vec![0.0; points.flat.len()];
+    let mut bounds = Bounds::EMPTY;
+    let mut finite = true;
+    for (i, (pose, w)) in poses.chunks_exact(3).zip(offsets.windows(2)).enumerate() {
+        let (x, y, theta) = (pose[0], pose[1], pose[2]);
+        if !(x.is_finite() && y.is_finite() && theta.is_finite()) {
+            return Err(HitlError::Input(format!(
+                "pose {i} is not finite ({x}, {y}, {theta}); give finite poses"
+            )));
+        }
+        if w[1] < w[0] {
+            return Err(HitlError::Input(format!(
+                "offsets must be non-decreasing (entry {i} is {} > {})",
+                w[0], w[1]
+            )));
+        }
+        // Both bounds lie in 0..=P: the ends are checked above and the sequence is monotone.
+        let range = 2 * w[0] as usize..2 * w[1] as usize;
+        let (Some(src), Some(dst)) = (points.flat.get(range.clone()), out.get_mut(range)) else {
+            return Err(HitlError::Input(format!(
+                "offsets of pose {i} point past the end of the points"
+            )));
+        };
+        let (s, c) = theta.sin_cos();
+        for (p, q) in src.chunks_exact(2).zip(dst.chunks_exact_mut(2)) {
+            let world = [c * p[0] - s * p[1] + x, s * p[0] + c * p[1] + y];
+            finite &= world[0].is_finite() & world[1].is_finite();
+            bounds.add(world);
+            q.copy_from_slice(&world);
+        }
+    }
+    if !finite {
+        Points::new(&out)?.check_finite("point")?;
+    }
+    Ok(WorldPoints { flat: out, bounds })
+}
+
+#[inline]
+pub(crate) fn dot(a: Point, b: Point) -> f64 {
+    a[0] * b[0] + a[1] * b[1]
+}
+
+#[inline]
+pub(crate) fn sub(a: Point, b: Point) -> Point {
+    [a[0] - b[0], a[1] - b[1]]
+}
+
+/// The unit normal of a line, made unique: angle in (-pi/2, pi/2]. `n` and `-n` describe the
+/// same undirected line, and both map to the same canonical vector bit for bit (adding 0.0
+/// turns a -0.0 component into +0.0).
+#[inline]
+pub(crate) fn canonical_normal(n: Point) -> Point {
+    if n[0] < 0.0 || (n[0] == 0.0 && n[1] < 0.0) {
+        [-n[0] + 0.0, -n[1] + 0.0]
+    } else {
+        [n[0] + 0.0, n[1] + 0.0]
+    }
+}
+
+/// The tangent that goes with a normal (the normal turned by -90 degrees).
+#[inline]
+pub(crate) fn tangent(n: Point) -> Point {
+    [n[1], -n[0]]
+}
+
+/// A segment in its direction-free frame: midpoint, half-length, canonical normal and tangent.
+/// Everything derived from a segment goes through this so that `a <-> b` cannot matter.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SegmentFrame {
+    pub mid: Point,
+    pub half: f64,
+    pub n: Point,
+    pub u: Point,
+}
+
+impl SegmentFrame {
+    pub fn new(seg: &Segment) -> Result<Self> {
+        let coords = [seg.a[0], seg.a[1], seg.b[0], seg.b[1]];
+        if !coords.iter().all(|v| v.is_finite()) {
+            return Err(HitlError::Input(format!(
+                "segment {:?} -> {:?} has a non-finite coordinate; draw it again",
+                seg.a, seg.b
+            )));
+        }
+        let d = sub(seg.b, seg.a);
+        let len = d[0].hypot(d[1]);
+        if len < MIN_SEGMENT_LENGTH {
+            return Err(HitlError::Input(format!(
+                "segment {:?} -> {:?} has length {len:.3e} m; draw a segment along the feature",
+                seg.a, seg.b
+            )));
+        }
+        // Swapping a and b negates d exactly, so the canonical normal is the same bits.
+        let n = canonical_normal([-d[1] / len, d[0] / len]);
+        Ok(Self {
+            mid: [0.5 * (seg.a[0] + seg.b[0]), 0.5 * (seg.a[1] + seg.b[1])],
+            half: 0.5 * len,
+            n,
+            u: tangent(n),
+        })
+    }
+
+    /// Squared distance from `p` to the segment (not the infinite line).
+    #[inline]
+    pub fn distance_sq(&self, p: Point) -> f64 {
+        let q = sub(p, self.mid);
+        let along = (dot(q, self.u).abs() - self.half).max(0.0);
+        let across = dot(q, self.n);
+        along * along + across * across
+    }
+
+    /// The endpoints, in the canonical order (along the tangent).
+    pub fn endpoints(&self) -> [Point; 2] {
+        let (m, u, h) = (self.mid, self.u, self.half);
+        [
+            [m[0] - h * u[0], m[1] - h * u[1]],
+            [m[0] + h * u[0], m[1] + h * u[1]],
+        ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frame_does_not_depend_on_direction() {
+        let s = Segment::new([1.25, -3.5], [4.75, 2.125]);
+        let r = Segment::new(s.b, s.a);
+        let (f, g) = (
+            SegmentFrame::new(&s).unwrap(),
+            SegmentFrame::new(&r).unwrap(),
+        );
+        assert_eq!(f.mid, g.mid);
+        assert_eq!(f.half, g.half);
+        assert_eq!(f.n, g.n);
+        assert_eq!(f.u, g.u);
+        assert!(f.n[0] >= 0.0);
+    }
+
+    #[test]
+    fn segment_distance_is_metric_past_the_ends() {
+        let f = SegmentFrame::new(&Segment::new([0.0, 0.0], [10.0, 0.0])).unwrap();
+        assert!((f.distance_sq([5.0, 3.0]) - 9.0).abs() < 1e-12);
+        assert!((f.distance_sq([13.0, 4.0]) - 25.0).abs() < 1e-12);
+        assert!((f.distance_sq([-3.0, -4.0]) - 25.0).abs() < 1e-12);
+        assert_eq!(f.distance_sq([2.0, 0.0]), 0.0);
+    }
+
+    #[test]
+    fn bad_segments_are_input_errors() {
+        let z = Segment::new([1.0, 1.0], [1.0, 1.0 + 1e-9]);
+        assert!(matches!(SegmentFrame::new(&z), Err(HitlError::Input(_))));
+        let n = Segment::new([f64::NAN, 1.0], [2.0, 1.0]);
+        assert!(matches!(SegmentFrame::new(&n), Err(HitlError::Input(_))));
+    }
+
+    #[test]
+    fn points_wrapper_checks_shape_and_finiteness() {
+        assert!(Points::new(&[1.0, 2.0, 3.0]).is_err());
+        let p = Points::new(&[1.0, 2.0, f64::INFINITY, 0.0]).unwrap();
+        assert_eq!(p.len(), 2);
+        assert_eq!(p.get(0), Some([1.0, 2.0]));
+        assert_eq!(p.get(2), None);
+        assert!(p.check_finite("points").is_err());
+    }
+
+    #[test]
+    fn world_points_transform_each_scan() {
+        let poses = [1.0, 2.0, std::f64::consts::FRAC_PI_2, -1.0, 0.0, 0.0];
+        let pts = [1.0, 0.0, 0.0, 1.0, 2.0, 3.0];
+        let w = world_points(&poses, Points::new(&pts).unwrap(), &[0, 2, 3]).unwrap();
+        let want = [1.0, 3.0, 0.0, 2.0, 1.0, 3.0];
+        for (a, b) in w.flat.iter().zip(want) {
+            assert!((a - b).abs() < 1e-12, "{w:?}");
+        }
+        assert_eq!(
+            w.bounds,
+            Bounds::of(Points::new(&w.flat).unwrap()).unwrap()
+        );
+        assert!((w.bounds.min[0]).abs() < 1e-12 && (w.bounds.max[1] - 3.0).abs() < 1e-12);
+        let p = Points::new(&pts).unwrap();
+        assert!(world_points(&poses, p, &[0, 2]).is_err());
+        assert!(world_points(&poses, p, &[0, 3, 2]).is_err());
+        assert!(world_points(&poses, p, &[1, 2, 3]).is_err());
+        assert!(world_points(&[0.0, f64::NAN, 0.0], p, &[0, 3]).is_err());
+        let inf = [0.0, 0.0, f64::INFINITY, 1.0];
+        let err = world_points(&[0.0; 3], Points::new(&inf).unwrap(), &[0, 2]).unwrap_err();
+        assert!(err.to_string().contains("row 1"), "{err}");
+    }
+
+    #[test]
+    fn bounds_of_odd_and_even_counts() {
+        for n in 0..7 {
+            let flat: Vec<f64> = (0..2 * n).map(|k| ((k * 37) % 11) as f64 - 5.0).collect();
+            let pts = Points::new(&flat).unwrap();
+            let mut want = Bounds::EMPTY;
+            pts.iter().for_each(|p| want.add(p));
+            assert_eq!(Bounds::of(pts).unwrap(), want);
+        }
+        assert!(Bounds::of(Points::new(&[1.0, 2.0, 3.0, f64::NAN, 0.0, 0.0]).unwrap()).is_err());
+    }
+}
