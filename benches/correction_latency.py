@@ -142,25 +142,25 @@ def fr079_case(repeats: int, log: Callable[[str], None]) -> dict[str, object] | 
     m = read_carmen(FR079)
     truth = m.poses.copy()
     n = m.num_poses
-    # Damage: a 3 degree heading fault half way, as a failing gyro would cause.
-    fault = n // 2
-    c = truth[fault]
-    ang = math.radians(3.0)
-    rot = np.array([[math.cos(ang), -math.sin(ang)], [math.sin(ang), math.cos(ang)]])
+    # Damage: a heading fault every 400 scans (+-2 degrees), as a failing gyro would cause.
     damaged = truth.copy()
-    damaged[fault:, :2] = (truth[fault:, :2] - c[:2]) @ rot.T + c[:2]
-    damaged[fault:, 2] = np.angle(np.exp(1j * (truth[fault:, 2] + ang)))
-    m = Map.from_poses_and_scans(
-        damaged, [m.points[m.offsets[i] : m.offsets[i + 1]] for i in range(n)], name="fr079-damaged"
-    )
+    for k, fault in enumerate(range(400, n, 400)):
+        ang = math.radians(2.0 if k % 2 == 0 else -1.5)
+        c = damaged[fault]
+        rot = np.array([[math.cos(ang), -math.sin(ang)], [math.sin(ang), math.cos(ang)]])
+        damaged[fault:, :2] = (damaged[fault:, :2] - c[:2]) @ rot.T + c[:2]
+        damaged[fault:, 2] = np.angle(np.exp(1j * (damaged[fault:, 2] + ang)))
+    scans = [m.points[m.offsets[i] : m.offsets[i + 1]] for i in range(n)]
+    m = Map.from_poses_and_scans(damaged, scans, name="fr079-damaged")
+    fault = 400
     # Revisits: pairs (early i, late j) whose TRUE positions are within 0.5 m.
-    early = np.arange(0, fault - 200, 25)
-    late = np.arange(fault + 200, n, 7)
     pairs = []
-    for i in early:
+    for i in range(0, n - 1000, 20):
+        late = np.arange(i + 800, n, 5)
         d = np.hypot(*(truth[late, :2] - truth[i, :2]).T)
         if d.min() < 0.5:
             pairs.append((int(i), int(late[int(np.argmin(d))])))
+    del fault
     rng = np.random.default_rng(11)
     true_world = m.world_points(truth)
     owner = m.pose_of_point()
@@ -199,7 +199,11 @@ def fr079_case(repeats: int, log: Callable[[str], None]) -> dict[str, object] | 
                 list(map(float, centre + t * dirn + rng.normal(0, 0.05, 2))) for t in (lo_q, hi_q)
             ]
 
-        return DrawnCorrection.make(seg(i - 3, i + 4), seg(j - 3, j + 4), Mode.COLOCATION)
+        a, b = seg(i - 3, i + 4), seg(j - 3, j + 4)
+        # A person corrects only what looks wrong.
+        if np.hypot(*np.subtract(np.mean(a, 0), np.mean(b, 0))) < 0.1:
+            raise ValueError("already consistent here")
+        return DrawnCorrection.make(a, b, Mode.COLOCATION)
 
     candidates = [lambda poses, i=i, j=j: wall_segment(poses, i, j) for i, j in pairs]
     log(f"fr079: {n} poses, {m.num_points} points, {len(pairs)} revisit pairs")
