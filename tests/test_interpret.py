@@ -156,7 +156,7 @@ def _angle_mod_pi(a: float) -> float:
 
 
 def _sloppy(seg: Segment, rng: np.random.Generator, deg: float, noise: float) -> Segment:
-    """`seg` turned by `deg` about its middle, each end moved `noise` metres in a random direction."""
+    """`seg` turned by `deg` about its middle, each end moved `noise` metres in some direction."""
     p = np.array(seg)
     mid = p.mean(axis=0)
     th = math.radians(deg)
@@ -194,8 +194,10 @@ def test_em_recovers_the_wall_from_a_sloppy_drawing(world: World, seed: int) -> 
     # The extent spans the drawing (clipped to it plus the band).
     xs = sorted([h.line_a[0][0], h.line_a[1][0]])
     lo, hi = min(a[0][0], a[1][0]), max(a[0][0], a[1][0])
-    assert lo - BAND - 1e-9 <= xs[0] < lo + 0.2 and hi - 0.2 < xs[1] <= hi + BAND + 1e-9
-    assert h.iterations[0] >= 1 and all(math.isfinite(v) for v in h.log_likelihood)
+    assert lo - BAND - 1e-9 <= xs[0] < lo + 0.2
+    assert hi - 0.2 < xs[1] <= hi + BAND + 1e-9
+    assert h.iterations[0] >= 1
+    assert all(math.isfinite(v) for v in h.log_likelihood)
 
 
 def test_clutter_is_rejected_and_the_wall_is_kept(world: World) -> None:
@@ -218,10 +220,12 @@ def test_clutter_is_rejected_and_the_wall_is_kept(world: World) -> None:
     assert np.isin(np.flatnonzero(wanted), idx).mean() > 0.97
     # Rows are (pose, index within that pose's scan).
     counts = np.diff(world.map.offsets)
-    assert np.all(h.s_a[:, 1] < counts[h.s_a[:, 0]]) and np.all(h.s_a[:, 1] >= 0)
+    assert np.all(h.s_a[:, 1] < counts[h.s_a[:, 0]])
+    assert np.all(h.s_a[:, 1] >= 0)
     assert np.array_equal(h.x_a, np.unique(h.s_a[:, 0]))
     assert np.array_equal(h.x_b, np.unique(h.s_b[:, 0]))
-    assert h.s_a.dtype == np.int64 and h.x_a.dtype == np.int64
+    assert h.s_a.dtype == np.int64
+    assert h.x_a.dtype == np.int64
 
 
 # --- the spatial index ---------------------------------------------------------------------------
@@ -273,7 +277,7 @@ def test_index_on_a_large_random_map() -> None:
         assert np.array_equal(got, want)
 
 
-# --- drawing direction -----------------------------------------------------------------------------
+# --- drawing direction ---------------------------------------------------------------------------
 
 
 def test_result_does_not_depend_on_drawing_direction(world: World) -> None:
@@ -295,7 +299,7 @@ def test_result_does_not_depend_on_drawing_direction(world: World) -> None:
         assert h.swapped == ref.swapped
 
 
-# --- rejections ------------------------------------------------------------------------------------
+# --- rejections ----------------------------------------------------------------------------------
 
 
 def test_zero_length_segment_is_rejected(world: World) -> None:
@@ -357,15 +361,14 @@ def test_interleaved_sets_are_rejected_naming_both_ranges() -> None:
     with pytest.raises(CorrectionRejected, match="interleave") as info:
         interpret(m, m.poses, drawn)
     msg = str(info.value)
-    h_poses = np.arange(40)
-    xa = h_poses[(h_poses % 2 == 0)]
-    assert "segment a is seen from poses" in msg and "segment b from poses" in msg
-    # Both ranges are named: evens for a and odds for b, each within the 40 poses.
-    ranges = [tuple(map(int, r)) for r in re.findall(r"poses (\d+)-(\d+)", msg)]
+    # Both ranges are named: even poses for a, odd poses for b, all within the 40 poses.
+    ranges = [(int(lo), int(hi)) for lo, hi in re.findall(r"poses (\d+)-(\d+)", msg)]
+    assert "segment a is seen from poses" in msg
     assert len(ranges) == 2
     (a0, a1), (b0, b1) = ranges
-    assert a0 % 2 == 0 and a1 % 2 == 0 and b0 % 2 == 1 and b1 % 2 == 1
-    assert a0 >= xa[0] and b1 <= 39 and a0 < b1 and b0 < a1
+    assert (a0 % 2, a1 % 2, b0 % 2, b1 % 2) == (0, 0, 1, 1)
+    assert a0 < b1 <= 39
+    assert b0 < a1
 
 
 def test_bad_poses_and_config_are_input_errors(world: World) -> None:
@@ -380,19 +383,22 @@ def test_bad_poses_and_config_are_input_errors(world: World) -> None:
         interpret(world.map, world.map.poses, drawn, DEFAULT.replace(candidate_band=0.0))
 
 
-# --- the pair rules --------------------------------------------------------------------------------
+# --- the pair rules ------------------------------------------------------------------------------
 
 
 def test_swap_rule(world: World) -> None:
     later = world.displayed_segment(A_FIRST, world.first_wrong + 1)
     kept = _run(world, A_FIRST, later)
     swapped = _run(world, later, A_FIRST)
-    assert not kept.swapped and swapped.swapped
+    assert not kept.swapped
+    assert swapped.swapped
     assert kept.x_a.max() < kept.x_b.min()
     assert swapped.x_a.max() < swapped.x_b.min()
     # Swapping renames a and b, nothing else.
-    assert np.array_equal(kept.s_a, swapped.s_a) and np.array_equal(kept.s_b, swapped.s_b)
-    assert kept.line_a == swapped.line_a and kept.line_b == swapped.line_b
+    assert np.array_equal(kept.s_a, swapped.s_a)
+    assert np.array_equal(kept.s_b, swapped.s_b)
+    assert kept.line_a == swapped.line_a
+    assert kept.line_b == swapped.line_b
     assert swapped.iterations == kept.iterations
     assert any("swapped" in n for n in swapped.notes)
     # a is the first pass, b the second.
@@ -414,7 +420,8 @@ def test_one_visit_per_segment(n1: int, n2: int) -> None:
     assert not np.isin(rows[:, 0], other).any()
     assert h.swapped == (n2 > n1)  # the kept visit of wall A comes after wall C
     note = next(n for n in h.notes if "visits" in n)
-    assert f"kept poses {wall_side[0]}-{wall_side[-1]}" in note and "dropped poses" in note
+    assert f"kept poses {wall_side[0]}-{wall_side[-1]}" in note
+    assert "dropped poses" in note
 
 
 def test_poses_below_the_threshold_are_dropped(world: World) -> None:
@@ -434,7 +441,7 @@ def test_poses_below_the_threshold_are_dropped(world: World) -> None:
     assert default.x_a.size <= everything.x_a.size
 
 
-# --- the Rust kernels against numpy ---------------------------------------------------------------
+# --- the Rust kernels against numpy --------------------------------------------------------------
 
 
 def _responsibilities(d: FloatArray, pi: float, sigma: float, band: float) -> FloatArray:
@@ -501,7 +508,8 @@ def test_rust_kernels_match_numpy(seed: int) -> None:
     # One iteration: M-step from w0, then the E-step at the new line with pi = mean(w0).
     (one,) = _core.em_fit(points, seg[None], max_iterations=1, **EM_ARGS)
     assert one.iterations == 1
-    assert one.phi == pytest.approx(phi, abs=1e-12) and one.rho == pytest.approx(rho, abs=1e-9)
+    assert one.phi == pytest.approx(phi, abs=1e-12)
+    assert one.rho == pytest.approx(rho, abs=1e-9)
     assert one.mixing == pytest.approx(w0.mean(), rel=1e-12)
     w1 = _responsibilities(cand @ n_ref - rho_ref, float(w0.mean()), 0.03, 0.3)
     np.testing.assert_allclose(one.weights, w1, rtol=1e-8, atol=1e-12)
@@ -529,7 +537,8 @@ def test_em_fit_scans_matches_em_fit_on_world_points(world: World) -> None:
     for f, g in zip(by_scans, by_world, strict=True):
         assert np.array_equal(f.candidates, g.candidates)
         np.testing.assert_allclose(f.weights, g.weights, atol=1e-9)
-        assert f.phi == pytest.approx(g.phi, abs=1e-9) and f.rho == pytest.approx(g.rho, abs=1e-9)
+        assert f.phi == pytest.approx(g.phi, abs=1e-9)
+        assert f.rho == pytest.approx(g.rho, abs=1e-9)
         assert f.extent.shape == (2, 2)
 
 

@@ -106,9 +106,7 @@ def _why_empty(sel: _Selection, band: float, min_points: int) -> str:
     if fit.candidates.size == 0:
         return f"no map points within {band:.2f} m of segment {sel.name}"
     if fit.num_inliers == 0:
-        return (
-            f"{fit.candidates.size} points near segment {sel.name}, none of them on one line"
-        )
+        return f"{fit.candidates.size} points near segment {sel.name}, none of them on one line"
     return (
         f"{fit.num_inliers} points on the line under segment {sel.name}, but no pose saw "
         f"{min_points} or more of them"
@@ -169,8 +167,8 @@ def interpret(
 ) -> Interpretation:
     """What the person meant by ``drawn`` on the map shown with ``poses`` (ALGORITHM.md §3).
 
-    For each segment: the points within ``r_c = candidate_band * sigma_h`` of it (a grid index,
-    never a scan of the map per segment), EM from the drawn line, ``S`` = points with
+    For each segment: the points within ``r_c = candidate_band * sigma_h`` of it (from a grid
+    index built once per call), EM from the drawn line, ``S`` = points with
     responsibility > 0.5 from poses that own at least ``min_points_per_pose`` of them. Then the
     pair rules: reject an empty set; keep one visit per segment (the one with most points,
     :data:`VISIT_GAP`); drop poses that see both; order the pair in time (``a`` is seen first,
@@ -179,13 +177,18 @@ def interpret(
     Raises:
         CorrectionRejected: the drawing cannot be turned into a correction (the reason says
             what to draw instead); nothing was changed.
-        InputError: ``poses`` do not fit ``map``, or ``config`` is unusable.
+        InputError: ``poses`` do not fit ``map``, the map has non-finite points, or ``config``
+            or ``visit_gap`` is unusable.
     """
     poses = np.ascontiguousarray(poses, dtype=np.float64)
     if poses.shape != map.poses.shape:
-        raise InputError(f"poses must have shape {map.poses.shape} like the map's, got {poses.shape}")
+        raise InputError(
+            f"poses must have shape {map.poses.shape} like the map's, got {poses.shape}"
+        )
     if not np.all(np.isfinite(poses)):
         raise InputError("poses contain non-finite values; give finite poses")
+    if visit_gap < 0:
+        raise InputError(f"visit_gap must be a number of poses >= 0, got {visit_gap}")
     seg_a, seg_b = _segment("a", drawn.a), _segment("b", drawn.b)
     sigma_h = config.sigma_h if drawn.sigma_h is None else drawn.sigma_h
     if not (math.isfinite(sigma_h) and sigma_h > 0):

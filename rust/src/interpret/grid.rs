@@ -183,11 +183,8 @@ impl GridIndex {
             let xb = a[0] + t1 * (b[0] - a[0]);
             let x_lo = xa.min(xb) - band - pad;
             let x_hi = xa.max(xb) + band + pad;
-            let col_lo = self
-                .clamp_ix(x_lo - self.min[0], self.nx)
-                .saturating_sub(1);
-            let col_hi =
-                (self.clamp_ix(x_hi - self.min[0], self.nx) + 1).min(self.nx - 1);
+            let col_lo = self.clamp_ix(x_lo - self.min[0], self.nx).saturating_sub(1);
+            let col_hi = (self.clamp_ix(x_hi - self.min[0], self.nx) + 1).min(self.nx - 1);
             let row = iy * self.nx;
             let (Some(&s), Some(&e)) = (
                 self.start.get(row + col_lo),
@@ -324,37 +321,5 @@ mod tests {
         assert_eq!(candidates(ok, &seg, 0.1).unwrap(), vec![0]);
         let empty = Points::new(&[]).unwrap();
         assert!(candidates(empty, &seg, 0.1).unwrap().is_empty());
-    }
-}
-
-#[cfg(test)]
-mod timing_scratch {
-    #![allow(clippy::all)]
-    use super::*;
-    use rand::{Rng, SeedableRng};
-    #[test]
-    #[ignore]
-    fn time_build() {
-        let mut rng = rand::rngs::StdRng::seed_from_u64(1);
-        let flat: Vec<f64> = (0..320_000)
-            .flat_map(|_| [rng.random_range(0.0..150.0), rng.random_range(-0.3..3.3)])
-            .collect();
-        let pts = Points::new(&flat).unwrap();
-        for _ in 0..5 {
-            let t = std::time::Instant::now();
-            let mut mn = [f64::INFINITY; 2];
-            for p in pts.iter() { mn = [mn[0].min(p[0]), mn[1].min(p[1])]; }
-            let cells: Vec<u32> = pts.iter().map(|p| (((p[0]-mn[0])*3.3) as u32) * 12 + ((p[1]-mn[1]) * 3.3) as u32).collect();
-            eprintln!("bbox+cells {:?} {}", t.elapsed(), cells.len());
-            let t = std::time::Instant::now();
-            let g = GridIndex::build(pts, 0.3).unwrap();
-            let t1 = t.elapsed();
-            let seg = Segment::new([70.0, 0.0], [74.0, 0.0]);
-            let c = g.query(pts, &seg, 0.3).unwrap();
-            let t2 = t.elapsed();
-            let t = std::time::Instant::now();
-            let b = candidates_brute_force(pts, &seg, 0.3).unwrap();
-            eprintln!("build {:?} query {:?} brute {:?} {} {}", t1, t2 - t1, t.elapsed(), c.len(), b.len());
-        }
     }
 }

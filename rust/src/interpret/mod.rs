@@ -12,8 +12,8 @@ mod em;
 mod grid;
 
 pub use em::{
-    em_fit, em_fit_scans, em_fit_segments, line_fit, log_likelihood, responsibilities, EmFit, EmParams, LineFit,
-    MAX_MIXING, MIN_MIXING,
+    em_fit, em_fit_scans, em_fit_segments, line_fit, log_likelihood, responsibilities, EmFit,
+    EmParams, LineFit, MAX_MIXING, MIN_MIXING,
 };
 pub use grid::{candidates, candidates_brute_force, GridIndex};
 
@@ -353,10 +353,7 @@ mod tests {
         for (a, b) in w.flat.iter().zip(want) {
             assert!((a - b).abs() < 1e-12, "{w:?}");
         }
-        assert_eq!(
-            w.bounds,
-            Bounds::of(Points::new(&w.flat).unwrap()).unwrap()
-        );
+        assert_eq!(w.bounds, Bounds::of(Points::new(&w.flat).unwrap()).unwrap());
         assert!((w.bounds.min[0]).abs() < 1e-12 && (w.bounds.max[1] - 3.0).abs() < 1e-12);
         let p = Points::new(&pts).unwrap();
         assert!(world_points(&poses, p, &[0, 2]).is_err());
