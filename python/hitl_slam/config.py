@@ -26,7 +26,8 @@ class Config:
 
     Interpretation (§3): ``sigma_h`` the human's pointing accuracy (default for library callers),
     candidate band ``r_c = candidate_band * sigma_h``, ``sigma_em`` sensor noise plus wall
-    roughness, initial clutter mixing weight, EM stopping rule, ``min_points_per_pose`` (T_p).
+    roughness, initial clutter mixing weight, EM stopping rule, ``min_points_per_pose`` (T_p),
+    ``visit_gap`` (how far apart in pose index two runs of selected poses are separate visits).
 
     Factors (§4.3): ``sigma_f`` point-to-line weight, ``k1`` / ``k2`` weights of the relation
     residual R_p, ``average_points`` for the paper's RMS form of R_a/R_b.
@@ -53,6 +54,7 @@ class Config:
     em_tolerance_rad: float = 1e-4  # [rad]
     em_max_iterations: int = 50
     min_points_per_pose: int = 8  # T_p
+    visit_gap: int = 10  # [poses] a gap larger than this in selected poses starts a new visit
     # §4.3 factors
     sigma_f: float = 0.03  # [m]
     k1: float = 1e6  # [1/m^2]

@@ -25,7 +25,7 @@ logger = logging.getLogger(__name__)
 MIN_SEGMENT_LENGTH = 1e-6
 """[m] A shorter segment is a click, not a drawing: it has no direction."""
 
-VISIT_GAP = 10
+VISIT_GAP = DEFAULT.visit_gap
 """[poses] Selected poses farther apart than this in index start a new visit. While the robot
 passes a wall, the poses that see it are consecutive except for short holes (a person walking by,
 a glance into a doorway, the T_p filter at grazing angles); a return to the same wall comes after
@@ -163,7 +163,7 @@ def interpret(
     drawn: DrawnCorrection,
     config: Config = DEFAULT,
     *,
-    visit_gap: int = VISIT_GAP,
+    visit_gap: int | None = None,
 ) -> Interpretation:
     """What the person meant by ``drawn`` on the map shown with ``poses`` (ALGORITHM.md §3).
 
@@ -187,6 +187,8 @@ def interpret(
         )
     if not np.all(np.isfinite(poses)):
         raise InputError("poses contain non-finite values; give finite poses")
+    if visit_gap is None:
+        visit_gap = config.visit_gap
     if visit_gap < 0:
         raise InputError(f"visit_gap must be a number of poses >= 0, got {visit_gap}")
     seg_a, seg_b = _segment("a", drawn.a), _segment("b", drawn.b)
