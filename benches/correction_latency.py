@@ -4,7 +4,7 @@ joint solve with every earlier correction), as a person waits for it in the UI.
 
 Two maps: a generated corridor building (3,000 poses, ~300,000 points, 15 earlier corrections made
 by a simulated human drawing on the current map, as a person would), and the Freiburg 079 log
-(4791 scans; ../shared/datasets/laser/freiburg-079-corrected.log.gz) damaged by a heading fault and
+(4791 scans; ../shared/datasets/laser/freiburg-079-corrected.log.gz) damaged by heading faults and
 repaired by the same simulated human. The timed correction is applied repeatedly to the same
 state; the table gives the median and the spread. Meant to run as
 
@@ -223,7 +223,7 @@ def fr079_case(repeats: int, log: Callable[[str], None]) -> dict[str, object] | 
     times = _time(lambda: apply_correction(m, poses, timed, active, DEFAULT), repeats)
     last = apply_correction(m, poses, timed, active, DEFAULT)
     return {
-        "map": "Freiburg 079 (corrected log, 3 degree heading fault injected half way)",
+        "map": "Freiburg 079 (corrected log damaged by heading faults of +2 / -1.5 degrees every 400 scans)",
         "poses": n,
         "points": m.num_points,
         "earlier": len(active),

@@ -198,6 +198,13 @@ impl RelationFactor {
             return input("both lines of a relation need observations");
         }
         let mut keys = vec![Key::Line(line_a), Key::Line(line_b)];
+        // Angle-only relations do not depend on the poses: keep them out of the keys, or the
+        // factor would couple every observing pose in the normal equations for nothing.
+        let shares = if matches!(mode, RelationMode::Parallel | RelationMode::Perpendicular) {
+            Vec::new()
+        } else {
+            shares
+        };
         for (n, s) in shares.iter().enumerate() {
             if shares[..n].iter().any(|o| o.0 == s.0) {
                 return input(format!("pose {} is listed twice in a relation", s.0));
@@ -430,6 +437,16 @@ mod tests {
         assert!((ca[1] - (w0[1] + w1[1]) / 5.0).abs() < 1e-12);
         let w2 = v.poses[2].transform_point([2.0, -1.0]);
         assert!((cb[0] - (w2[0] + 3.0 * v.poses[2].x) / 4.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn angle_only_relations_touch_only_the_lines() {
+        for mode in [RelationMode::Parallel, RelationMode::Perpendicular] {
+            let f = RelationFactor::new(mode, 0, 1, shares(), 1.0, 1.0).unwrap();
+            assert_eq!(f.keys(), &[Key::Line(0), Key::Line(1)]);
+        }
+        let f = RelationFactor::new(RelationMode::Collinear, 0, 1, shares(), 1.0, 1.0).unwrap();
+        assert_eq!(f.keys().len(), 5);
     }
 
     #[test]
