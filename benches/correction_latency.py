@@ -223,7 +223,10 @@ def fr079_case(repeats: int, log: Callable[[str], None]) -> dict[str, object] | 
     times = _time(lambda: apply_correction(m, poses, timed, active, DEFAULT), repeats)
     last = apply_correction(m, poses, timed, active, DEFAULT)
     return {
-        "map": "Freiburg 079 (corrected log damaged by heading faults of +2 / -1.5 degrees every 400 scans)",
+        "map": (
+            "Freiburg 079 (corrected log damaged by heading faults of +2 / -1.5 degrees "
+            "every 400 scans)"
+        ),
         "poses": n,
         "points": m.num_points,
         "earlier": len(active),
