@@ -41,6 +41,7 @@ from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
+from hitl_slam.io.atomic import fsync_directory
 from hitl_slam.map import Map
 
 __all__ = [
@@ -219,20 +220,7 @@ def _link_no_clobber(temp: str, target: str) -> None:
         os.replace(temp, target)
     else:
         os.unlink(temp)
-    _fsync_directory(os.path.dirname(target))
-
-
-def _fsync_directory(directory: str) -> None:
-    # Makes the new directory entry durable on POSIX; not possible (nor needed) everywhere.
-    try:
-        fd = os.open(directory or ".", os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        with contextlib.suppress(OSError):
-            os.fsync(fd)
-    finally:
-        os.close(fd)
+    fsync_directory(os.path.dirname(target))
 
 
 class Journal:

@@ -16,7 +16,7 @@ from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
 from hitl_slam.graph import PoseGraph
 
-__all__ = ["InformationSource", "Map", "motion_model_information"]
+__all__ = ["InformationSource", "Map", "motion_model_information", "to_world"]
 
 
 class InformationSource(enum.IntEnum):
@@ -38,6 +38,16 @@ def motion_model_information(
     info[:, 0, 0] = info[:, 1, 1] = 1.0 / sigma_t**2
     info[:, 2, 2] = 1.0 / sigma_th**2
     return info
+
+
+def to_world(
+    poses: NDArray[np.float64], owners: NDArray[np.int64], points: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """``p_world = R(theta) p + t`` for robot-frame ``points`` (K, 2) seen from ``poses[owners]``."""
+    p = poses[owners]
+    c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
+    x, y = points[:, 0], points[:, 1]
+    return np.stack([c * x - s * y + p[:, 0], s * x + c * y + p[:, 1]], axis=1)
 
 
 @dataclass(eq=False)
@@ -117,11 +127,7 @@ class Map:
 
     def world_points(self, poses: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """``(P, 2)`` every point in the world frame under ``poses`` (default: the map's)."""
-        p = self.poses if poses is None else poses
-        owner = self.pose_of_point()
-        c, s = np.cos(p[owner, 2]), np.sin(p[owner, 2])
-        x, y = self.points[:, 0], self.points[:, 1]
-        return np.stack([c * x - s * y + p[owner, 0], s * x + c * y + p[owner, 1]], axis=1)
+        return to_world(self.poses if poses is None else poses, self.pose_of_point(), self.points)
 
     def pose_graph(self, poses: NDArray[np.float64] | None = None) -> PoseGraph:
         """The relative-pose factors as a :class:`PoseGraph` with ``poses`` as initial guess."""

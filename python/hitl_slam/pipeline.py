@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation
-from hitl_slam.map import Map, motion_model_information
+from hitl_slam.map import Map, motion_model_information, to_world
 
 __all__ = [
     "CorrectionResult",
@@ -97,13 +97,6 @@ def _observations(map: Map, rows: NDArray[np.int64]) -> tuple[NDArray[np.int64],
     return poses, points
 
 
-def _to_world(poses: FloatArray, owners: NDArray[np.int64], points: FloatArray) -> FloatArray:
-    p = poses[owners]
-    c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
-    x, y = points[:, 0], points[:, 1]
-    return np.stack([c * x - s * y + p[:, 0], s * x + c * y + p[:, 1]], axis=1)
-
-
 def solve_all(
     map: Map,
     active: Sequence[Interpretation],
@@ -129,8 +122,8 @@ def solve_all(
             k2=config.k2,
             average_points=config.average_points,
         )
-        lines.append(fit_line(_to_world(x0, a_poses, a_points)))
-        lines.append(fit_line(_to_world(x0, b_poses, b_points)))
+        lines.append(fit_line(to_world(x0, a_poses, a_points)))
+        lines.append(fit_line(to_world(x0, b_poses, b_points)))
     line_values = np.array(lines, dtype=np.float64).reshape(-1, 2)
     poses, solved_lines, report = engine.optimize_with_lines(
         x0,

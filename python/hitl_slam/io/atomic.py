@@ -10,7 +10,7 @@ import secrets
 from collections.abc import Iterator
 from typing import TextIO
 
-__all__ = ["atomic_write_text", "atomic_writer"]
+__all__ = ["atomic_write_text", "atomic_writer", "fsync_directory"]
 
 
 def _create_temp(target: str) -> tuple[int, str]:
@@ -25,7 +25,7 @@ def _create_temp(target: str) -> tuple[int, str]:
             continue
 
 
-def _fsync_directory(directory: str) -> None:
+def fsync_directory(directory: str) -> None:
     # Makes the rename itself durable on POSIX; not possible (nor needed) everywhere.
     try:
         fd = os.open(directory or ".", os.O_RDONLY)
@@ -67,7 +67,7 @@ def atomic_writer(
         with contextlib.suppress(FileNotFoundError):
             os.unlink(temp)
         raise
-    _fsync_directory(os.path.dirname(target))
+    fsync_directory(os.path.dirname(target))
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str, *, encoding: str = "utf-8") -> None:
