@@ -43,7 +43,7 @@ def motion_model_information(
 def to_world(
     poses: NDArray[np.float64], owners: NDArray[np.int64], points: NDArray[np.float64]
 ) -> NDArray[np.float64]:
-    """``p_world = R(theta) p + t`` for robot-frame ``points`` (K, 2) seen from ``poses[owners]``."""
+    """``p_world = R(theta) p + t`` for robot-frame ``points`` (K, 2) seen by ``poses[owners]``."""
     p = poses[owners]
     c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
     x, y = points[:, 0], points[:, 1]
