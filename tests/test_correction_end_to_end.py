@@ -5,11 +5,14 @@ real session without changing anything."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT
@@ -17,7 +20,7 @@ from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected
 from hitl_slam.map import Map
 from hitl_slam.pipeline import apply_correction, fit_line
-from hitl_slam.session import Session
+from hitl_slam.session import Session, apply_in_order
 from hitl_slam.sim.corridor import (
     INNER_BOTTOM,
     OUTER_BOTTOM,
@@ -159,3 +162,46 @@ def test_nan_coordinates_are_refused(world: World) -> None:
             DrawnCorrection(Mode.PARALLEL, ((0.0, 0.0), (math.nan, 1.0)), ((1, 1), (2, 2))),
             (),
         )
+
+
+# --- undo / redo with the real pipeline --------------------------------------------------------
+
+_OPS = st.lists(
+    st.one_of(st.sampled_from(["undo", "redo"]), st.integers(min_value=0, max_value=2)),
+    min_size=1,
+    max_size=8,
+)
+
+
+@settings(
+    max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(ops=_OPS)
+def test_any_sequence_equals_the_surviving_corrections_from_scratch(
+    world: World, ops: list[object]
+) -> None:
+    """Corrections (drawn once on the input map), undos and redos in any order leave exactly the
+    map that applying the surviving corrections from scratch gives, bit for bit."""
+    drawings = [
+        _draw(world, Mode.COLOCATION),
+        _draw(world, Mode.PARALLEL),
+        _draw(world, Mode.PERPENDICULAR),
+    ]
+    with Session.new(world.map) as session:
+        for op in ops:
+            if op == "undo":
+                if session.can_undo:
+                    session.undo()
+            elif op == "redo":
+                if session.can_redo:
+                    session.redo()
+            else:
+                d = drawings[int(str(op))]
+                with contextlib.suppress(CorrectionRejected):
+                    session.correct(d.a, d.b, d.mode)
+        surviving = list(session.corrections)
+        poses = session.poses.copy()
+    expected, _ = apply_in_order(world.map, surviving)
+    np.testing.assert_array_equal(poses, expected)
+    if not surviving:
+        np.testing.assert_array_equal(poses, world.map.poses)
