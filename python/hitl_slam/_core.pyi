@@ -15,6 +15,7 @@ __all__ = [
     "em_fit",
     "em_fit_scans",
     "explicit_transform",
+    "inconsistency",
     "line_fit",
     "segment_candidates",
     "wrap_angle",
@@ -244,3 +245,22 @@ def line_fit(
     band: float,
 ) -> tuple[float, float, NDArray[np.float64]]:
     """Weighted TLS line ``(phi, rho, extent)`` of ``points`` ``(K, 2)``."""
+
+def inconsistency(
+    poses: NDArray[np.float64],
+    points: NDArray[np.float64],
+    offsets: NDArray[np.int64],
+    *,
+    resolution: float,
+    surface_cells: float,
+    min_stop: float,
+    grazing_deg: float,
+    pairwise: bool = False,
+    heat_map: bool = True,
+    origin: NDArray[np.float64] | None = None,
+    shape: tuple[int, int] | None = None,
+    threads: int = 0,
+) -> tuple[float, NDArray[np.float64] | None, NDArray[np.float64]]:
+    """The inconsistency metric (ALGORITHM.md §6): ``(total_m2, heat (H, W) or None, origin)``;
+    the grid covers the data unless ``origin`` and ``shape`` ``(H, W)`` are given; ``threads``
+    0 uses rayon's pool, n a local pool of n threads."""

@@ -13,10 +13,14 @@ import time
 from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 from hitl_slam import __version__
 from hitl_slam.errors import HitlSlamError, InputError, SolverError
+
+if TYPE_CHECKING:
+    from hitl_slam.map import Map
+    from hitl_slam.metrics import Inconsistency
 
 T = TypeVar("T")
 
@@ -81,6 +85,21 @@ examples:
 MAP_OR_SESSION is a .covars file, a CARMEN log (.clf/.log, optionally .gz/.bz2) or a session
 (.hitl). OUT's extension picks the format: .covars, .g2o, .txt, .pgm, or .jsonl (corrections;
 only from a session, whose file is read and never changed).
+"""
+
+_METRICS_EPILOG = """\
+examples:
+  hitl-slam metrics fixed.covars
+  hitl-slam metrics fr079.clf.bz2 --relations fr079.relations
+  hitl-slam metrics run.hitl --heat-map run-heat.png
+
+MAP is a .covars file, a CARMEN log (.clf/.log, optionally .gz/.bz2) or a session (.hitl, its
+current map). Inconsistency (Nashed and Biswas 2018): summed over ordered pairs of scans, the area
+one scan sees as free space and the other as occupied, on a grid of --resolution cells, in m^2
+(lower is better; a perfect map scores near zero). With --relations (Kuemmerle et al. 2009,
+"t1 t2 dx dy dz roll pitch yaw" lines matched to the scans by timestamp): mean +- standard
+deviation of |t_est - t_true| (m) and |yaw_est - yaw_true| (deg) of the relative poses.
+--heat-map draws the per-cell count of contradicting scan pairs over the map as a PNG.
 """
 
 
@@ -308,6 +327,95 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_metrics(args: argparse.Namespace) -> int:
+    import math
+
+    from hitl_slam.config import DEFAULT
+    from hitl_slam.io.maps import load_map
+    from hitl_slam.io.relations import read_relations
+    from hitl_slam.metrics import inconsistency, relations_error
+
+    heat_path = None if args.heat_map is None else Path(args.heat_map)
+    if heat_path is not None and heat_path.suffix.lower() != ".png":
+        raise InputError(f"{heat_path}: the heat map is written as PNG; give a .png file name")
+    config = DEFAULT
+    if args.resolution is not None:
+        if not (math.isfinite(args.resolution) and args.resolution > 0):
+            raise InputError(
+                f"--resolution must be a positive number of metres, got {args.resolution}"
+            )
+        config = DEFAULT.replace(grid_resolution=args.resolution)
+    # Read before the (slower) map, so a bad relations file fails fast.
+    relations = None if args.relations is None else read_relations(args.relations)
+    the_map = _with_progress("loading", args.quiet, lambda: load_map(args.map))
+    # Matched before the metric runs, so relations that do not fit the map fail before any output.
+    err = None if relations is None else relations_error(the_map, None, relations)
+    t0 = time.perf_counter()
+    result = _with_progress(
+        "inconsistency", args.quiet, lambda: inconsistency(the_map, None, config)
+    )
+    elapsed = time.perf_counter() - t0
+    height, width = result.heat.shape
+    print(f"{args.map}: {the_map.num_poses} poses, {the_map.num_points} points")
+    print(
+        f"inconsistency: {result.total_m2:.3f} m^2 ({width} x {height} cells of "
+        f"{result.resolution:g} m, {elapsed:.2f} s)"
+    )
+    if err is not None:
+        print(
+            f"relations: {err.count}, translation {err.translation_mean:.4f} +- "
+            f"{err.translation_std:.4f} m (max {err.translation_max:.4f}), rotation "
+            f"{err.rotation_mean_deg:.3f} +- {err.rotation_std_deg:.3f} deg "
+            f"(max {err.rotation_max_deg:.3f})"
+        )
+    if heat_path is not None:
+        _write_heat_map(the_map, result, heat_path)
+        print(f"wrote {heat_path}")
+    return 0
+
+
+def _write_heat_map(the_map: Map, result: Inconsistency, path: Path) -> None:
+    """The heat map over the map's points, as a PNG (matplotlib imported only here)."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from matplotlib.colors import LogNorm
+
+    heat = np.ma.masked_less_equal(result.heat, 0.0)
+    world = the_map.world_points()
+    left, right, bottom, top = result.extent
+    aspect = (top - bottom) / max(right - left, 1e-9)
+    fig, ax = plt.subplots(figsize=(10.0, max(3.0, min(10.0, 10.0 * aspect)) + 0.8))
+    try:
+        ax.scatter(world[:, 0], world[:, 1], s=0.05, c="0.75", linewidths=0, rasterized=True)
+        if heat.count():
+            image = ax.imshow(
+                heat,
+                origin="lower",
+                extent=result.extent,
+                cmap="inferno",
+                norm=LogNorm(vmin=1.0, vmax=max(float(heat.max()), 1.0)),
+                interpolation="nearest",
+            )
+            fig.colorbar(image, ax=ax, label="scan pairs (free vs occupied)", shrink=0.8)
+        ax.set_xlim(left, right)
+        ax.set_ylim(bottom, top)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_title(f"{the_map.name}: inconsistency {result.total_m2:.2f} m^2")
+        buffer = io.BytesIO()
+        fig.savefig(buffer, format="png", dpi=150, bbox_inches="tight")
+    finally:
+        plt.close(fig)
+    # Rendered in memory first, so a failure leaves no half-written file.
+    path.write_bytes(buffer.getvalue())
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="hitl-slam",
@@ -397,6 +505,24 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("-o", "--output", required=True, metavar="OUT", help="output file")
     export.add_argument("-q", "--quiet", action="store_true", help="only the summary line")
     export.set_defaults(func=_cmd_export)
+
+    metrics = sub.add_parser(
+        "metrics",
+        help="score a map: inconsistency (m^2), and the error against ground-truth relations",
+        description="Measure a map's global consistency and, given relations, its accuracy.",
+        epilog=_METRICS_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    metrics.add_argument("map", metavar="MAP", help="input map (.covars, .clf/.log, .hitl)")
+    metrics.add_argument(
+        "--relations", metavar="R", help="ground-truth relations (.relations) for the map's log"
+    )
+    metrics.add_argument("--heat-map", metavar="OUT.png", help="write the per-cell heat map")
+    metrics.add_argument(
+        "--resolution", type=float, metavar="M", help="grid cell size in metres (default 0.05)"
+    )
+    metrics.add_argument("-q", "--quiet", action="store_true", help="no progress display")
+    metrics.set_defaults(func=_cmd_metrics)
     return parser
 
 

@@ -32,6 +32,9 @@ class Config:
     Factors (§4.3): ``sigma_f`` point-to-line weight, ``k1`` / ``k2`` weights of the relation
     residual R_p, ``average_points`` for the paper's RMS form of R_a/R_b.
 
+    Inconsistency metric (§6): ``metric_surface_cells``, ``metric_min_stop`` and
+    ``metric_grazing_deg`` are its robustness rules (a) and (b); the grid is ``grid_resolution``.
+
     Chosen defaults and why: sigma_f = 3 cm is the laser's range noise plus wall roughness, so a
     line stays on its own observations; K1 = 1e6 /m^2 and K2 = 1e7 /rad^2 make a human relation far
     stronger than any odometry edge (a person who says "same wall" means it) while per-point R_a/R_b
@@ -66,6 +69,10 @@ class Config:
     absolute_tolerance: float = 1e-6
     # §6 metric / occupancy export
     grid_resolution: float = 0.05  # [m]
+    # §6 inconsistency metric: its robustness rules (without them a perfect map scores 100s m^2)
+    metric_surface_cells: float = 2.0  # [cells] (a) free space ends this far from the hit surface
+    metric_min_stop: float = 0.10  # [m] (a) and at least this far before the hit, along the beam
+    metric_grazing_deg: float = 15.0  # [deg] (b) beams meeting a surface below this carve nothing
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):

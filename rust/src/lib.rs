@@ -36,6 +36,7 @@ pub mod error;
 pub mod factors;
 pub mod graph;
 pub mod interpret;
+pub mod metric;
 pub mod se2;
 pub mod solver;
 pub mod values;

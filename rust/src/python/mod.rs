@@ -6,6 +6,7 @@
 //! and reported as an internal error instead of reaching the user as `PanicException`.
 
 mod interpret;
+mod metric;
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
@@ -732,6 +733,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(explicit_transform, m)?)?;
     m.add_function(wrap_pyfunction!(backpropagate, m)?)?;
     interpret::register(m)?;
+    metric::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }
