@@ -17,9 +17,7 @@ setup: $(BIN)/python
 	$(BIN)/python -m pip install --quiet --editable ".[test]"
 
 demo: setup
-	mkdir -p $(DEMO)
-	$(BIN)/hitl-slam generate $(DEMO)/manhattan.g2o --poses 3500 --seed 0
-	$(BIN)/hitl-slam solve $(DEMO)/manhattan.g2o -o $(DEMO)/manhattan-optimized.g2o
+	$(BIN)/hitl-slam demo -o $(DEMO)
 
 lint: setup
 	cargo fmt --check
