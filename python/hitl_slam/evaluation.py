@@ -1,0 +1,326 @@
+"""`hitl-slam evaluate`: the paper's Results, reproduced in kind. Each scenario is a damaged map
+with known truth; a simulated person repairs it one drawing at a time; we score the map before and
+after (Table 1: angles and spacings between known wall pairs; the inconsistency metric; ATE) and
+write a Markdown report with figures.
+
+Scenarios: three generated worlds (the lost-poses room, parallel corridors, a campus) and the two
+corrected real logs in ../shared/datasets/laser damaged by injected faults, whose walls are found
+in the corrected map (pseudo ground truth) by RANSAC.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hitl_slam.config import DEFAULT, Config
+from hitl_slam.errors import InputError
+from hitl_slam.map import Map
+
+__all__ = ["ScenarioResult", "real_log_scenario", "run_evaluation"]
+
+FloatArray = NDArray[np.float64]
+LASER = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "laser"
+
+
+@dataclass(frozen=True)
+class ScenarioResult:
+    name: str
+    poses: int
+    travel_m: float
+    angle_samples: int
+    spacing_samples: int
+    angle_before: float
+    angle_after: float
+    spacing_before: float
+    spacing_after: float
+    inconsistency_before: float
+    inconsistency_after: float
+    ate_before: float
+    ate_after: float
+    corrections: int
+    rejections: int
+    finished: bool
+    time_s: float
+    figure: Path | None
+
+    @property
+    def inconsistency_reduction(self) -> float:
+        if self.inconsistency_before <= 0:
+            return 0.0
+        return 1.0 - self.inconsistency_after / self.inconsistency_before
+
+
+def real_log_scenario(
+    path: Path,
+    *,
+    faults: Sequence[object],
+    name: str,
+    seed: int = 0,
+    max_pairs: int = 40,
+    min_wall_length: float = 2.0,
+) -> object:
+    """A :class:`~hitl_slam.sim.Scenario` from a corrected CARMEN log: the log's poses are the
+    (pseudo) truth, the scans are the real ones, the map to repair is dead-reckoned from the
+    true motions with odometry noise and ``faults``; walls and point labels come from RANSAC on
+    the true map, and the known pairs are long walls that are parallel or perpendicular there
+    (within 1 degree), with their measured angle and spacing as the true values."""
+    from hitl_slam.io.carmen import read_carmen
+    from hitl_slam.sim import FeaturePair, Floorplan, Lidar, Scenario
+    from hitl_slam.sim.odometry import DEFAULT_NOISE, odometry
+    from hitl_slam.sim.scenario import angle_between, fit_points, spacing_between
+    from hitl_slam.walls import extract_walls
+
+    log = read_carmen(path)
+    truth = log.poses.copy()
+    walls, labels = extract_walls(log.world_points(truth), seed=seed)
+    rng = np.random.default_rng(seed)
+    estimate = odometry(truth, rng, DEFAULT_NOISE, list(faults))  # type: ignore[arg-type]
+    scans = [log.points[log.offsets[i] : log.offsets[i + 1]] for i in range(log.num_poses)]
+    damaged = Map.from_poses_and_scans(estimate, scans, name=name, source=str(path))
+    world = log.world_points(truth)
+    fits = {}
+    for w in range(len(walls)):
+        pts = world[labels == w]
+        length = math.hypot(walls[w, 2] - walls[w, 0], walls[w, 3] - walls[w, 1])
+        if len(pts) >= 200 and length >= min_wall_length:
+            fits[w] = fit_points(pts)
+    pairs = []
+    keys = sorted(fits)
+    for x, i in enumerate(keys):
+        for j in keys[x + 1 :]:
+            ang = angle_between(fits[i], fits[j])
+            if ang < 1.0:
+                pairs.append(FeaturePair(i, j, "parallel", ang))
+                pairs.append(FeaturePair(i, j, "spacing", spacing_between(fits[i], fits[j])))
+            elif ang > 89.0:
+                pairs.append(FeaturePair(i, j, "perpendicular", ang))
+    if not pairs:
+        raise InputError(f"{path}: no long parallel or perpendicular walls found to score against")
+    if len(pairs) > max_pairs:
+        pick = np.sort(rng.choice(len(pairs), size=max_pairs, replace=False))
+        pairs = [pairs[k] for k in pick]
+    names = tuple(f"wall{w}" for w in range(len(walls)))
+    plan = Floorplan(name, walls, names, tuple(pairs))
+    return Scenario(
+        name=name,
+        map=damaged,
+        truth=truth,
+        walls=walls,
+        wall_names=names,
+        wall_of_point=labels,
+        feature_pairs=tuple(pairs),
+        floorplan=plan,
+        lidar=Lidar(),
+        faults=tuple(faults),  # type: ignore[arg-type]
+        seed=seed,
+    )
+
+
+def _ate(estimate: FloatArray, truth: FloatArray) -> float:
+    from hitl_slam.metrics import ate
+
+    return float(ate(estimate, truth, align=True))
+
+
+def evaluate_scenario(
+    scenario: object,
+    out_dir: Path | None,
+    *,
+    seed: int = 0,
+    max_corrections: int = 60,
+    config: Config = DEFAULT,
+    figures: bool = True,
+) -> ScenarioResult:
+    """Repairs one scenario with the simulated person and scores it before and after."""
+    from hitl_slam.metrics import inconsistency
+    from hitl_slam.sim import Scenario, SimulatedHuman, repair
+
+    if not isinstance(scenario, Scenario):
+        raise InputError("evaluate_scenario needs a hitl_slam.sim.Scenario")
+    start = time.perf_counter()
+    m = scenario.map
+    before = m.poses.copy()
+    result = repair(
+        scenario, SimulatedHuman(scenario, seed, config=config), max_corrections=max_corrections
+    )
+    after = result.poses
+    e0, e1 = scenario.errors(before), scenario.errors(after)
+    inc0 = inconsistency(m, before, config)
+    inc1 = inconsistency(m, after, config, like=inc0)
+    figure = None
+    if figures and out_dir is not None:
+        from hitl_slam.plot import write_before_after
+
+        slug = scenario.name.lower().replace(" ", "-")
+        figure = write_before_after(
+            m,
+            before,
+            after,
+            out_dir / f"{slug}.png",
+            interpretations=[s.interpretation for s in result.corrections],
+            drawn=[s.drawn for s in result.corrections],
+            titles=(f"{scenario.name}: damaged", f"after {result.used} corrections"),
+        )
+    return ScenarioResult(
+        name=scenario.name,
+        poses=m.num_poses,
+        travel_m=scenario.travel,
+        angle_samples=int(e0.angular.size),
+        spacing_samples=int(e0.translational.size),
+        angle_before=_nanmean(e0.angular),
+        angle_after=_nanmean(e1.angular),
+        spacing_before=_nanmean(e0.translational),
+        spacing_after=_nanmean(e1.translational),
+        inconsistency_before=inc0.total_m2,
+        inconsistency_after=inc1.total_m2,
+        ate_before=_ate(before, scenario.truth),
+        ate_after=_ate(after, scenario.truth),
+        corrections=result.used,
+        rejections=result.rejections,
+        finished=result.finished,
+        time_s=time.perf_counter() - start,
+        figure=figure,
+    )
+
+
+def _nanmean(values: FloatArray) -> float:
+    finite = values[np.isfinite(values)]
+    return float(finite.mean()) if finite.size else math.nan
+
+
+def table(results: Sequence[ScenarioResult]) -> str:
+    """The Table-1-style summary, plus inconsistency, ATE and effort."""
+    head = (
+        "| map | poses | angle samples | angle error in (deg) | angle error out (deg) "
+        "| spacing samples | spacing error in (m) | spacing error out (m) "
+        "| inconsistency in (m^2) | out (m^2) | reduction | ATE in (m) | ATE out (m) "
+        "| corrections | time (s) |"
+    )
+    rows = [head, "|" + "---|" * 15]
+    for r in results:
+        rows.append(
+            f"| {r.name} | {r.poses} | {r.angle_samples} "
+            f"| {r.angle_before:.2f} | {r.angle_after:.2f} "
+            f"| {r.spacing_samples} | {r.spacing_before:.3f} | {r.spacing_after:.3f} "
+            f"| {r.inconsistency_before:.1f} | {r.inconsistency_after:.1f} "
+            f"| {100 * r.inconsistency_reduction:.0f}% | {r.ate_before:.3f} | {r.ate_after:.3f} "
+            f"| {r.corrections} | {r.time_s:.1f} |"
+        )
+    if results:
+        ang = _nanmean(np.array([r.angle_after for r in results]))
+        sp = _nanmean(np.array([r.spacing_after for r in results]))
+        red = float(np.mean([r.inconsistency_reduction for r in results]))
+        rows.append(
+            f"| **mean** | | | {_nanmean(np.array([r.angle_before for r in results])):.2f} | "
+            f"**{ang:.2f}** | | {_nanmean(np.array([r.spacing_before for r in results])):.3f} | "
+            f"**{sp:.3f}** | | | **{100 * red:.0f}%** | | | "
+            f"{sum(r.corrections for r in results)} | |"
+        )
+    return "\n".join(rows)
+
+
+def scenarios(*, seed: int = 0, quick: bool = False) -> list[tuple[str, Callable[[], object]]]:
+    """The evaluation's scenarios, as (name, builder) in order; real logs only when present."""
+    from hitl_slam.sim import campus, lost_poses_room, parallel_corridors
+    from hitl_slam.sim.odometry import HeadingDrift, HeadingJump
+
+    out: list[tuple[str, Callable[[], object]]] = [
+        ("lost poses room", lambda: lost_poses_room(seed)),
+        ("parallel corridors", lambda: parallel_corridors(seed)),
+    ]
+    if quick:
+        return out
+    out.append(("campus", lambda: campus(seed)))
+    fr079 = LASER / "freiburg-079-corrected.log.gz"
+    intel = LASER / "intel-corrected.log.gz"
+    if fr079.is_file():
+        out.append(
+            (
+                "Freiburg 079 (damaged)",
+                lambda: real_log_scenario(
+                    fr079,
+                    name="Freiburg 079 (damaged)",
+                    seed=seed,
+                    faults=[
+                        HeadingJump(1800, math.radians(10.0)),
+                        HeadingDrift(3000, 3600, math.radians(0.5)),
+                    ],
+                ),
+            )
+        )
+    if intel.is_file():
+        out.append(
+            (
+                "Intel lab (damaged)",
+                lambda: real_log_scenario(
+                    intel,
+                    name="Intel lab (damaged)",
+                    seed=seed,
+                    faults=[
+                        HeadingJump(300, math.radians(10.0)),
+                        HeadingDrift(550, 700, math.radians(0.5)),
+                    ],
+                ),
+            )
+        )
+    return out
+
+
+def run_evaluation(
+    out_dir: Path,
+    *,
+    seed: int = 0,
+    quick: bool = False,
+    config: Config = DEFAULT,
+    log: Callable[[str], None] = lambda _m: None,
+) -> tuple[list[ScenarioResult], Path]:
+    """Runs every scenario and writes ``out_dir/report.md`` with the table and figures."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    results = []
+    for name, build in scenarios(seed=seed, quick=quick):
+        log(f"{name}: building")
+        scenario = build()
+        r = evaluate_scenario(scenario, out_dir, seed=seed, config=config)
+        log(
+            f"{name}: {r.corrections} corrections, "
+            f"angle {r.angle_before:.2f} -> {r.angle_after:.2f} deg, "
+            f"spacing {r.spacing_before:.3f} -> {r.spacing_after:.3f} m, inconsistency "
+            f"-{100 * r.inconsistency_reduction:.0f}%, {r.time_s:.1f} s"
+        )
+        results.append(r)
+    report = out_dir / "report.md"
+    from hitl_slam.io.atomic import atomic_write_text
+
+    lines = [
+        "# hitl-slam evaluation",
+        "",
+        "Each map is damaged (odometry noise plus injected faults: heading jumps, slow drift),",
+        "then repaired by a simulated person who draws one noisy correction at a time on the",
+        "current map (5 cm endpoint noise). Errors are between known wall pairs (the paper's",
+        "Table 1): angles between walls known parallel or perpendicular, spacings between",
+        "parallel walls.",
+        "",
+        table(results),
+        "",
+        "The paper (Nashed and Biswas, AAAI 2018), Table 1: mean angular error 6.74 -> 1.4",
+        "degrees, mean translational error 2.71 -> 0.04 m; LGRC inconsistency reduced by 91% on",
+        "average.",
+        "",
+        "Real logs: Freiburg building 079 and the Intel Research Lab (corrected logs via Radish;",
+        "thanks to their authors, C. Stachniss, D. Haehnel and the Freiburg SLAM benchmark of",
+        "Kuemmerle et al. 2009). Their corrected poses serve as pseudo ground truth; walls are",
+        "found in the corrected map by RANSAC.",
+        "",
+    ]
+    for r in results:
+        if r.figure is not None:
+            lines += [f"## {r.name}", "", f"![{r.name}]({r.figure.name})", ""]
+    atomic_write_text(report, "\n".join(lines))
+    return results, report
