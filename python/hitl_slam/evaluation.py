@@ -14,6 +14,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -60,28 +61,33 @@ class ScenarioResult:
 def real_log_scenario(
     path: Path,
     *,
-    faults: Sequence[object],
+    faults: Callable[[int], Sequence[object]],
     name: str,
     seed: int = 0,
     max_pairs: int = 40,
     min_wall_length: float = 2.0,
+    min_travel: float = 0.25,
+    min_rotation: float = math.radians(10.0),
 ) -> object:
     """A :class:`~hitl_slam.sim.Scenario` from a corrected CARMEN log: the log's poses are the
     (pseudo) truth, the scans are the real ones, the map to repair is dead-reckoned from the
-    true motions with odometry noise and ``faults``; walls and point labels come from RANSAC on
-    the true map, and the known pairs are long walls that are parallel or perpendicular there
-    (within 1 degree), with their measured angle and spacing as the true values."""
+    true motions with odometry noise and ``faults(number of poses)``; walls and point labels
+    come from RANSAC on the true map, and the known pairs are long walls that are parallel or
+    perpendicular there (within 1 degree), with their measured angle and spacing as the true
+    values. Scans are kept every ``min_travel`` metres or ``min_rotation`` radians (keyframes),
+    as SLAM front ends do."""
     from hitl_slam.io.carmen import read_carmen
     from hitl_slam.sim import FeaturePair, Floorplan, Lidar, Scenario
     from hitl_slam.sim.odometry import DEFAULT_NOISE, odometry
     from hitl_slam.sim.scenario import angle_between, fit_points, spacing_between
     from hitl_slam.walls import extract_walls
 
-    log = read_carmen(path)
+    log = read_carmen(path, min_travel=min_travel, min_rotation=min_rotation)
     truth = log.poses.copy()
+    injected = list(faults(log.num_poses))
     walls, labels = extract_walls(log.world_points(truth), seed=seed)
     rng = np.random.default_rng(seed)
-    estimate = odometry(truth, rng, DEFAULT_NOISE, list(faults))  # type: ignore[arg-type]
+    estimate = odometry(truth, rng, DEFAULT_NOISE, injected)  # type: ignore[arg-type]
     scans = [log.points[log.offsets[i] : log.offsets[i + 1]] for i in range(log.num_poses)]
     damaged = Map.from_poses_and_scans(estimate, scans, name=name, source=str(path))
     world = log.world_points(truth)
@@ -118,7 +124,7 @@ def real_log_scenario(
         feature_pairs=tuple(pairs),
         floorplan=plan,
         lidar=Lidar(),
-        faults=tuple(faults),  # type: ignore[arg-type]
+        faults=tuple(injected),  # type: ignore[arg-type]
         seed=seed,
     )
 
@@ -238,38 +244,24 @@ def scenarios(*, seed: int = 0, quick: bool = False) -> list[tuple[str, Callable
     if quick:
         return out
     out.append(("campus", lambda: campus(seed)))
-    fr079 = LASER / "freiburg-079-corrected.log.gz"
-    intel = LASER / "intel-corrected.log.gz"
-    if fr079.is_file():
-        out.append(
-            (
-                "Freiburg 079 (damaged)",
-                lambda: real_log_scenario(
-                    fr079,
-                    name="Freiburg 079 (damaged)",
-                    seed=seed,
-                    faults=[
-                        HeadingJump(1800, math.radians(10.0)),
-                        HeadingDrift(3000, 3600, math.radians(0.5)),
-                    ],
-                ),
+
+    def damage(n: int) -> list[object]:
+        # A 10 degree heading jump at 3/8 of the run, and a corridor bending by 0.5 degree per
+        # metre over the 5/8 - 3/4 stretch.
+        return [
+            HeadingJump(3 * n // 8, math.radians(10.0)),
+            HeadingDrift(5 * n // 8, 3 * n // 4, math.radians(0.5)),
+        ]
+
+    for file, label in (
+        ("freiburg-079-corrected.log.gz", "Freiburg 079 (damaged)"),
+        ("intel-corrected.log.gz", "Intel lab (damaged)"),
+    ):
+        path = LASER / file
+        if path.is_file():
+            out.append(
+                (label, partial(real_log_scenario, path, name=label, seed=seed, faults=damage))
             )
-        )
-    if intel.is_file():
-        out.append(
-            (
-                "Intel lab (damaged)",
-                lambda: real_log_scenario(
-                    intel,
-                    name="Intel lab (damaged)",
-                    seed=seed,
-                    faults=[
-                        HeadingJump(300, math.radians(10.0)),
-                        HeadingDrift(550, 700, math.radians(0.5)),
-                    ],
-                ),
-            )
-        )
     return out
 
 
