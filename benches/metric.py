@@ -61,7 +61,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             "|---|---|---|---|",
             *rows,
             "",
-            "Data: Freiburg building 079 (Kuemmerle et al. 2009, via Radish); thanks to its authors.",
+            "Data: Freiburg building 079 (Kuemmerle et al. 2009, via Radish); thanks to its "
+            "authors.",
         ]
     )
     print(body)
