@@ -125,6 +125,19 @@ class Map:
         """``(P,)`` the pose index of every point."""
         return np.repeat(np.arange(self.num_poses, dtype=np.int64), np.diff(self.offsets))
 
+    def checked_poses(self, poses: object = None) -> NDArray[np.float64]:
+        """``poses`` (default: the map's) as a float64 ``(N, 3)`` array for this map, or a clear
+        InputError when the shape is wrong or a value is not finite."""
+        out = np.ascontiguousarray(self.poses if poses is None else poses, dtype=np.float64)
+        if out.shape != (self.num_poses, 3):
+            raise InputError(
+                f"poses must have shape ({self.num_poses}, 3) for this map, got {out.shape}; "
+                "pass one (x, y, theta) row per pose of the map"
+            )
+        if not np.all(np.isfinite(out)):
+            raise InputError("poses contain NaN or inf; pass finite poses")
+        return out
+
     def world_points(self, poses: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """``(P, 2)`` every point in the world frame under ``poses`` (default: the map's)."""
         return to_world(self.poses if poses is None else poses, self.pose_of_point(), self.points)

@@ -36,18 +36,6 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 
-def _poses_for(map: Map, poses: ArrayLike | None) -> FloatArray:
-    out = np.ascontiguousarray(map.poses if poses is None else poses, dtype=np.float64)
-    if out.shape != (map.num_poses, 3):
-        raise InputError(
-            f"poses must have shape ({map.num_poses}, 3) for this map, got {out.shape}; "
-            "pass one (x, y, theta) row per pose of the map"
-        )
-    if not np.all(np.isfinite(out)):
-        raise InputError("poses contain NaN or inf; pass finite poses")
-    return out
-
-
 # --- inconsistency --------------------------------------------------------------------------
 
 
@@ -105,7 +93,7 @@ def inconsistency(
     Raises:
         InputError: bad poses, a non-positive resolution, a grid over 1e8 cells, or bad rules.
     """
-    p = _poses_for(map, poses)
+    p = map.checked_poses(poses)
     if not (isinstance(threads, int) and threads >= 0):
         raise InputError(f"threads must be an integer >= 0 (0: all cores), got {threads!r}")
     resolution = config.grid_resolution if like is None else like.resolution
@@ -240,7 +228,7 @@ def relations_error(
         InputError: bad poses, a map without timestamps, or a relation with no scan near one of
             its timestamps.
     """
-    p = _poses_for(map, poses)
+    p = map.checked_poses(poses)
     if map.timestamps is None:
         raise InputError(
             "the map has no timestamps to match relations to; load the map from the CARMEN "
@@ -347,7 +335,7 @@ def feature_pair_errors(
     Raises:
         InputError: bad poses or labels, an unknown kind, or a wall with fewer than two points.
     """
-    p = _poses_for(map, poses)
+    p = map.checked_poses(poses)
     labels = np.asarray(wall_of_point).reshape(-1)
     if labels.shape != (map.num_points,) or not np.issubdtype(labels.dtype, np.integer):
         raise InputError(

@@ -14,7 +14,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.errors import InputError
 from hitl_slam.io.atomic import atomic_writer
 from hitl_slam.io.textfile import PathLike, input_error, read_lines
 from hitl_slam.map import Map
@@ -233,7 +232,7 @@ def write_covars(map: Map, poses: ArrayLike, path: PathLike) -> None:
         InputError: ``poses`` of the wrong shape or not finite.
     """
     name = os.fspath(path)
-    out_poses = _checked_poses(map, poses)
+    out_poses = map.checked_poses(poses)
     n = map.num_poses
     covariances = map.metadata.get("pose_covariances")
     cov = np.zeros((n, 9))
@@ -271,18 +270,6 @@ def write_covars(map: Map, poses: ArrayLike, path: PathLike) -> None:
 
 def _reprs(values: list[float]) -> list[str]:
     return [repr(v) for v in values]
-
-
-def _checked_poses(map: Map, poses: ArrayLike) -> NDArray[np.float64]:
-    out = np.ascontiguousarray(poses, dtype=np.float64)
-    if out.shape != (map.num_poses, 3):
-        raise InputError(
-            f"poses must have shape ({map.num_poses}, 3) for this map, got {out.shape}; "
-            "pass one (x, y, theta) row per pose of the map"
-        )
-    if not np.all(np.isfinite(out)):
-        raise InputError("poses contain NaN or inf; pass finite poses")
-    return out
 
 
 def _distinct_consecutive(poses: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -47,18 +47,6 @@ _CHUNK = 10_000_000  # scanline crossings per vectorized batch (bounds temporary
 _JOIN_GAP = 5.5
 
 
-def _checked_poses(map: Map, poses: ArrayLike) -> NDArray[np.float64]:
-    out = np.ascontiguousarray(poses, dtype=np.float64)
-    if out.shape != (map.num_poses, 3):
-        raise InputError(
-            f"poses must have shape ({map.num_poses}, 3) for this map, got {out.shape}; "
-            "pass one (x, y, theta) row per pose of the map"
-        )
-    if not np.all(np.isfinite(out)):
-        raise InputError("poses contain NaN or inf; pass finite poses")
-    return out
-
-
 def write_tum(map: Map, poses: ArrayLike, path: PathLike) -> None:
     """Write the trajectory in TUM format, one ``t x y z qx qy qz qw`` line per pose.
 
@@ -66,7 +54,7 @@ def write_tum(map: Map, poses: ArrayLike, path: PathLike) -> None:
     cos(theta/2))``. ``t`` is the pose's timestamp, or its index when the map has none. Floats
     are written with ``repr`` (exact).
     """
-    out = _checked_poses(map, poses)
+    out = map.checked_poses(poses)
     stamps = map.timestamps if map.timestamps is not None else np.arange(map.num_poses, dtype=float)
     half = 0.5 * out[:, 2]
     table = np.stack(
@@ -81,7 +69,7 @@ def write_tum(map: Map, poses: ArrayLike, path: PathLike) -> None:
 def write_g2o_map(map: Map, poses: ArrayLike, path: PathLike) -> None:
     """Write the map's pose graph (its ORIGINAL factors) with ``poses`` as ``VERTEX_SE2`` /
     ``EDGE_SE2`` lines (see :func:`hitl_slam.io.save_graph`; ``.graph`` gives TORO)."""
-    out = _checked_poses(map, poses)
+    out = map.checked_poses(poses)
     save_graph(map.pose_graph(out), out, path)
 
 
@@ -150,7 +138,7 @@ def occupancy_grid(
     Raises:
         InputError: bad poses, a non-positive resolution, or a grid over 1e8 cells.
     """
-    out = _checked_poses(map, poses)
+    out = map.checked_poses(poses)
     res = config.grid_resolution if resolution is None else float(resolution)
     if not (math.isfinite(res) and res > 0):
         raise InputError(f"resolution must be a finite number > 0 (metres), got {resolution!r}")

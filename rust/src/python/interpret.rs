@@ -10,25 +10,12 @@ use numpy::{
 };
 use pyo3::prelude::*;
 
-use super::{guarded, input_err, to_py};
+use super::{flat_rows, guarded, input_err, to_py};
 use crate::error::HitlError;
 use crate::interpret::{self, EmFit, EmParams, LineFit, Points, Segment};
 
 /// The rows of an `(n, cols)` array as one flat slice: borrowed when the array is
 /// C-contiguous (the usual case), copied in logical order otherwise.
-fn flat<'a>(a: ArrayView2<'a, f64>, cols: usize, what: &str) -> Result<Cow<'a, [f64]>, HitlError> {
-    if a.ncols() != cols {
-        return Err(input_err(format!(
-            "{what} must have shape (n, {cols}), got {:?}",
-            a.shape()
-        )));
-    }
-    Ok(match a.to_slice() {
-        Some(s) => Cow::Borrowed(s),
-        None => Cow::Owned(a.iter().copied().collect()),
-    })
-}
-
 fn segment_of(a: ArrayView2<'_, f64>) -> Result<Segment, HitlError> {
     if a.shape() != [2, 2] {
         return Err(input_err(format!(
@@ -145,7 +132,7 @@ fn em_fit(
         .detach(|| {
             guarded(|| {
                 let segs = segments_of(segs)?;
-                let flat = flat(pts, 2, "world_points")?;
+                let flat = flat_rows(pts, 2, "world_points")?;
                 interpret::em_fit_segments(Points::new(&flat)?, &segs, &params)
             })
         })
@@ -195,8 +182,8 @@ fn em_fit_scans(
         .detach(|| {
             guarded(|| {
                 let segs = segments_of(segs)?;
-                let poses = flat(poses, 3, "poses")?;
-                let pts = flat(pts, 2, "points")?;
+                let poses = flat_rows(poses, 3, "poses")?;
+                let pts = flat_rows(pts, 2, "points")?;
                 let offsets: Cow<'_, [i64]> = match offsets.to_slice() {
                     Some(s) => Cow::Borrowed(s),
                     None => Cow::Owned(offsets.iter().copied().collect()),
@@ -225,7 +212,7 @@ fn segment_candidates<'py>(
         .detach(|| {
             guarded(|| {
                 let seg = segment_of(seg)?;
-                let flat = flat(pts, 2, "world_points")?;
+                let flat = flat_rows(pts, 2, "world_points")?;
                 let points = Points::new(&flat)?;
                 if use_index {
                     interpret::candidates(points, &seg, band)
@@ -254,7 +241,7 @@ fn line_fit<'py>(
     let (pts, w, seg) = (points.as_array(), weights.as_array(), segment.as_array());
     let line = guarded(|| {
         let seg = segment_of(seg)?;
-        let flat = flat(pts, 2, "points")?;
+        let flat = flat_rows(pts, 2, "points")?;
         let w: Cow<'_, [f64]> = match w.to_slice() {
             Some(s) => Cow::Borrowed(s),
             None => Cow::Owned(w.iter().copied().collect()),

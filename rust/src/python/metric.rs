@@ -4,29 +4,16 @@
 
 use std::borrow::Cow;
 
-use numpy::ndarray::{Array1, Array2, ArrayView1, ArrayView2};
+use numpy::ndarray::{Array1, Array2, ArrayView1};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 
-use super::{guarded, input_err, to_py};
+use super::{flat_rows, guarded, input_err, to_py};
 use crate::error::HitlError;
 use crate::metric::{self, Grid, MetricParams, Scans};
 
 /// More threads than this is surely a mistake (and would only cost memory).
 const MAX_THREADS: usize = 1024;
-
-fn rows<'a>(a: ArrayView2<'a, f64>, cols: usize, what: &str) -> Result<Cow<'a, [f64]>, HitlError> {
-    if a.ncols() != cols {
-        return Err(input_err(format!(
-            "{what} must have shape (n, {cols}), got {:?}",
-            a.shape()
-        )));
-    }
-    Ok(match a.to_slice() {
-        Some(s) => Cow::Borrowed(s),
-        None => Cow::Owned(a.iter().copied().collect()),
-    })
-}
 
 fn vector<T: Copy>(a: ArrayView1<'_, T>) -> Cow<'_, [T]> {
     match a.to_slice() {
@@ -74,8 +61,8 @@ fn inconsistency<'py>(
     let origin: Option<Vec<f64>> = origin.map(|o| o.as_array().iter().copied().collect());
     let result = py.detach(|| {
         guarded(|| {
-            let poses = rows(poses, 3, "poses")?;
-            let points = rows(points, 2, "points")?;
+            let poses = flat_rows(poses, 3, "poses")?;
+            let points = flat_rows(points, 2, "points")?;
             let offsets = vector(offsets);
             let scans = Scans::new(&poses, &points, &offsets)?;
             let grid = match (origin.as_deref(), shape) {

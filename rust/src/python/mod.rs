@@ -65,6 +65,25 @@ pub(super) fn guarded<T>(f: impl FnOnce() -> Result<T, HitlError>) -> Result<T, 
     }
 }
 
+/// A read-only `(n, cols)` view as one row-major slice: borrowed when the array is C-contiguous
+/// (no copy), copied otherwise.
+pub(super) fn flat_rows<'a>(
+    a: numpy::ndarray::ArrayView2<'a, f64>,
+    cols: usize,
+    what: &str,
+) -> Result<std::borrow::Cow<'a, [f64]>, HitlError> {
+    if a.ncols() != cols {
+        return Err(input_err(format!(
+            "{what} must have shape (n, {cols}), got {:?}",
+            a.shape()
+        )));
+    }
+    Ok(match a.to_slice() {
+        Some(s) => std::borrow::Cow::Borrowed(s),
+        None => std::borrow::Cow::Owned(a.iter().copied().collect()),
+    })
+}
+
 pub(super) fn input_err(msg: impl Into<String>) -> HitlError {
     HitlError::Input(msg.into())
 }
