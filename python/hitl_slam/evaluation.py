@@ -143,8 +143,12 @@ def evaluate_scenario(
     max_corrections: int = 60,
     config: Config = DEFAULT,
     figures: bool = True,
+    quick_human: bool = False,
 ) -> ScenarioResult:
-    """Repairs one scenario with the simulated person and scores it before and after."""
+    """Repairs one scenario with the simulated person and scores it before and after.
+
+    ``quick_human``: the person commits each drawing after one look (no zooming in to redraw,
+    each pair tried once), which keeps large real maps to minutes instead of tens of minutes."""
     from hitl_slam.metrics import inconsistency
     from hitl_slam.sim import Scenario, SimulatedHuman, repair
 
@@ -153,9 +157,14 @@ def evaluate_scenario(
     start = time.perf_counter()
     m = scenario.map
     before = m.poses.copy()
-    result = repair(
-        scenario, SimulatedHuman(scenario, seed, config=config), max_corrections=max_corrections
+    human = SimulatedHuman(
+        scenario,
+        seed,
+        config=config,
+        max_redraws=0 if quick_human else 2,
+        max_attempts=1 if quick_human else 2,
     )
+    result = repair(scenario, human, max_corrections=max_corrections)
     after = result.poses
     e0, e1 = scenario.errors(before), scenario.errors(after)
     inc0 = inconsistency(m, before, config)
@@ -232,18 +241,21 @@ def table(results: Sequence[ScenarioResult]) -> str:
     return "\n".join(rows)
 
 
-def scenarios(*, seed: int = 0, quick: bool = False) -> list[tuple[str, Callable[[], object]]]:
-    """The evaluation's scenarios, as (name, builder) in order; real logs only when present."""
+def scenarios(
+    *, seed: int = 0, quick: bool = False
+) -> list[tuple[str, Callable[[], object], bool]]:
+    """The evaluation's scenarios, as (name, builder, is a real log) in order; real logs only
+    when present."""
     from hitl_slam.sim import campus, lost_poses_room, parallel_corridors
     from hitl_slam.sim.odometry import HeadingDrift, HeadingJump
 
-    out: list[tuple[str, Callable[[], object]]] = [
-        ("lost poses room", lambda: lost_poses_room(seed)),
-        ("parallel corridors", lambda: parallel_corridors(seed)),
+    out: list[tuple[str, Callable[[], object], bool]] = [
+        ("lost poses room", lambda: lost_poses_room(seed), False),
+        ("parallel corridors", lambda: parallel_corridors(seed), False),
     ]
     if quick:
         return out
-    out.append(("campus", lambda: campus(seed)))
+    out.append(("campus", lambda: campus(seed), False))
 
     def damage(n: int) -> list[object]:
         # A 10 degree heading jump at 3/8 of the run, and a corridor bending by 0.5 degree per
@@ -260,7 +272,11 @@ def scenarios(*, seed: int = 0, quick: bool = False) -> list[tuple[str, Callable
         path = LASER / file
         if path.is_file():
             out.append(
-                (label, partial(real_log_scenario, path, name=label, seed=seed, faults=damage))
+                (
+                    label,
+                    partial(real_log_scenario, path, name=label, seed=seed, faults=damage),
+                    True,
+                )
             )
     return out
 
@@ -276,10 +292,10 @@ def run_evaluation(
     """Runs every scenario and writes ``out_dir/report.md`` with the table and figures."""
     out_dir.mkdir(parents=True, exist_ok=True)
     results = []
-    for name, build in scenarios(seed=seed, quick=quick):
+    for name, build, real in scenarios(seed=seed, quick=quick):
         log(f"{name}: building")
         scenario = build()
-        r = evaluate_scenario(scenario, out_dir, seed=seed, config=config)
+        r = evaluate_scenario(scenario, out_dir, seed=seed, config=config, quick_human=real)
         log(
             f"{name}: {r.corrections} corrections, "
             f"angle {r.angle_before:.2f} -> {r.angle_after:.2f} deg, "
