@@ -11,6 +11,7 @@ in the corrected map (pseudo ground truth) by RANSAC.
 from __future__ import annotations
 
 import math
+import re
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -173,7 +174,7 @@ def evaluate_scenario(
     if figures and out_dir is not None:
         from hitl_slam.plot import write_before_after
 
-        slug = scenario.name.lower().replace(" ", "-")
+        slug = re.sub(r"[^a-z0-9]+", "-", scenario.name.lower()).strip("-")
         figure = write_before_after(
             m,
             before,
