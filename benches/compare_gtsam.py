@@ -421,6 +421,19 @@ def now_utc() -> str:
     return datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
 
 
+def provenance(pinning: Pinning | None = None, note: str = "") -> list[str]:
+    """The lines every recorded section opens with: when, the exact command, the machine."""
+    return [
+        f"Measured {now_utc()}{note} with:",
+        "",
+        "```sh",
+        command_line(),
+        "```",
+        "",
+        *machine_description(pinning),
+    ]
+
+
 def replace_section(path: Path, name: str, body: str) -> None:
     """Replace the text between ``<!-- name:begin -->`` and ``<!-- name:end -->`` in ``path``.
 
@@ -456,13 +469,7 @@ def section(
         "the ordering, plus optimize(); hitl-slam: optimize() on a graph without a cached engine)."
     )
     lines = [
-        f"Measured {now_utc()} ({who[args.only]}) with:",
-        "",
-        "```",
-        command_line(),
-        "```",
-        "",
-        *machine_description(pinning),
+        *provenance(pinning, f" ({who[args.only]})"),
         "",
         settings,
         "",

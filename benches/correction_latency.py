@@ -271,13 +271,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows.append(fr)
     body = "\n".join(
         [
-            f"Measured {shared.now_utc()} with:",
-            "",
-            "```sh",
-            shared.command_line(),
-            "```",
-            "",
-            *shared.machine_description(None),
+            *shared.provenance(),
             "",
             f"One correction end to end, timed {args.repeats} times on the same state "
             "(interpret + explicit + back-propagate + joint solve with all earlier corrections); "

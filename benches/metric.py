@@ -46,13 +46,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
     body = "\n".join(
         [
-            f"Measured {shared.now_utc()} with:",
-            "",
-            "```sh",
-            shared.command_line(),
-            "```",
-            "",
-            *shared.machine_description(None),
+            *shared.provenance(),
             "",
             f"Freiburg 079 corrected log: {m.num_poses} scans, {m.num_points} points, grid 0.05 m; "
             f"median of {args.repeats} (target: under 1 s on one core).",

@@ -126,6 +126,19 @@ fn read_info(m: numpy::ndarray::ArrayView2<'_, f64>) -> [[f64; 3]; 3] {
     ]
 }
 
+/// A `(3,)` measurement and its `(3, 3)` information, checked for shape.
+fn read_measurement(
+    z: numpy::ndarray::ArrayView1<'_, f64>,
+    info: numpy::ndarray::ArrayView2<'_, f64>,
+) -> Result<(Pose2, [[f64; 3]; 3]), HitlError> {
+    if z.len() != 3 || info.shape() != [3, 3] {
+        return Err(input_err(
+            "measurement must have shape (3,) and information (3, 3)",
+        ));
+    }
+    Ok((Pose2::new(z[0], z[1], z[2]), read_info(info)))
+}
+
 /// A pose graph held by the core, with its cached symbolic analysis.
 #[pyclass(module = "hitl_slam._core", name = "Graph")]
 pub struct PyGraph {
@@ -218,12 +231,8 @@ impl PyGraph {
         let (z, info) = (measurement.as_array(), information.as_array());
         let graph = &mut self.inner;
         guarded(|| {
-            if z.len() != 3 || info.shape() != [3, 3] {
-                return Err(input_err(
-                    "measurement must have shape (3,) and information (3, 3)",
-                ));
-            }
-            let f = BetweenFactor::new(i, j, Pose2::new(z[0], z[1], z[2]), &read_info(info))
+            let (z, info) = read_measurement(z, info)?;
+            let f = BetweenFactor::new(i, j, z, &info)
                 .map_err(|e| input_err(format!("edge {i} -> {j}: {e}")))?;
             graph.add_between(f)
         })
@@ -241,12 +250,8 @@ impl PyGraph {
         let (z, info) = (measurement.as_array(), information.as_array());
         let graph = &mut self.inner;
         guarded(|| {
-            if z.len() != 3 || info.shape() != [3, 3] {
-                return Err(input_err(
-                    "measurement must have shape (3,) and information (3, 3)",
-                ));
-            }
-            let f = PriorFactor::new(i, Pose2::new(z[0], z[1], z[2]), &read_info(info))?;
+            let (z, info) = read_measurement(z, info)?;
+            let f = PriorFactor::new(i, z, &info)?;
             graph.add_prior(f)
         })
         .map_err(|e| to_py(py, e))
