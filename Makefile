@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 DEMO := build/demo
 
-.PHONY: setup demo test lint test-rust test-python bench clean
+.PHONY: setup browser demo test lint test-rust test-python bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -15,6 +15,10 @@ $(BIN)/python:
 # Builds the Rust extension (release) and installs the package with its test tools.
 setup: $(BIN)/python
 	$(BIN)/python -m pip install --quiet --editable ".[test]"
+
+# Debian's chromium for the web UI's browser tests (apt-get; skipped when already there).
+browser:
+	@command -v chromium >/dev/null 2>&1 || bash .ci/install-chromium
 
 demo: setup
 	$(BIN)/hitl-slam demo -o $(DEMO)
@@ -31,7 +35,7 @@ lint: setup
 test-rust:
 	cargo test
 
-test-python: setup
+test-python: setup browser
 	$(BIN)/python -m pytest
 
 test: lint test-rust test-python
