@@ -321,3 +321,29 @@ def test_repair_through_a_session_counts_rejections(room: Scenario, corridors: S
     assert angle < 0.5
     with Session.new(corridors.map) as other, pytest.raises(InputError):
         repair(room, human, session=other)
+
+
+def test_human_straightens_a_bent_pass() -> None:
+    # Only a slow heading drift inside one pass: no two passes disagree, yet the corridor is bent.
+    s = parallel_corridors(
+        seed=0, heading_jump_deg=0.0, bend_deg_per_m=0.3, bend_over=(0.05, 0.2), noise=NO_NOISE
+    )
+    human = SimulatedHuman(s, 0)
+    issues = human.inconsistencies(s.map.poses)
+    assert issues
+    worst = issues[0]
+    assert (worst.a, worst.b) in human.splits  # the two ends of one pass
+    assert worst.a.wall == worst.b.wall and worst.mode is Mode.COLLINEAR
+    assert worst.b.first - worst.a.last >= human.min_separation
+    drawn = human.next_correction(s.map.poses)
+    assert drawn is not None
+    h = interpret(s.map, s.map.poses, drawn)
+    assert h.x_a[-1] < h.x_b[0]  # the pass is split in time, not rejected as one visit
+    result = repair(s, SimulatedHuman(s, 0), max_corrections=20)
+    assert result.finished
+    bent = SimulatedHuman(s, 0, split_visits=False)
+    assert bent.splits == ()
+    before = max(i.angle_deg for i in issues if (i.a, i.b) in human.splits)
+    after = [i for i in human.inconsistencies(result.poses) if (i.a, i.b) in human.splits]
+    assert before > 1.0
+    assert after == []  # every pass is straight again (within the visibility thresholds)

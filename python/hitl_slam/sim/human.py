@@ -79,6 +79,11 @@ class SimulatedHuman:
     look at what the drawing selects (the interface highlights it) before committing, and
     redraw zoomed in twice as far, up to ``max_redraws`` times, if it is not the two passes they
     meant. A pair drawn ``max_attempts`` times, or rejected once, is not drawn again.
+
+    With ``split_visits`` they also look along each long pass (at least ``3 * min_separation``
+    poses): a wall whose first and last thirds, as the map shows them, are not one straight line
+    is a bent corridor (heading drift within the pass), fixed by a collinear drawing over the
+    two ends, as the paper's users do.
     """
 
     def __init__(
@@ -97,6 +102,7 @@ class SimulatedHuman:
         check_selection: bool = True,
         max_redraws: int = 2,
         max_attempts: int = 2,
+        split_visits: bool = True,
         config: Config = DEFAULT,
     ) -> None:
         if not (endpoint_noise >= 0 and angle_threshold_deg > 0 and offset_threshold > 0):
@@ -121,6 +127,7 @@ class SimulatedHuman:
         self._owner = scenario.map.pose_of_point()
         self._index: dict[Visit, IntArray] = {}
         self.visits = self._find_visits(min_visit_points)
+        self.splits = self._split_visits(min_visit_points) if split_visits else ()
         self.redraws = 0  # drawings thrown away after looking at their selection
         self.last: Inconsistency | None = None  # what the latest drawing was meant to fix
         self._attempts: dict[tuple[int, int, int, int, str], int] = {}
@@ -149,6 +156,25 @@ class SimulatedHuman:
                     visits.append(Visit(wall, int(run[0]), int(run[-1]), total))
         return tuple(sorted(visits, key=lambda v: (v.first, v.wall)))
 
+    def _split_visits(self, min_points: int) -> tuple[tuple[Visit, Visit], ...]:
+        """The first and last thirds of every pass long enough to hold two visits
+        ``min_separation`` apart, as (earlier, later) pairs."""
+        s = self.scenario
+        out = []
+        for v in self.visits:
+            n = v.last - v.first + 1
+            if n < 3 * self.min_separation:
+                continue
+            third = n // 3
+            parts = []
+            for first, last in ((v.first, v.first + third - 1), (v.last - third + 1, v.last)):
+                lo, hi = s.map.offsets[first], s.map.offsets[last + 1]
+                count = int(np.count_nonzero(s.wall_of_point[lo:hi] == v.wall))
+                parts.append(Visit(v.wall, first, last, count))
+            if all(p.points >= min_points for p in parts):
+                out.append((parts[0], parts[1]))
+        return tuple(out)
+
     def _points(self, poses: FloatArray, visit: Visit) -> FloatArray:
         """The visit's labelled points in the world frame under ``poses``."""
         idx = self._index.get(visit)
@@ -171,6 +197,9 @@ class SimulatedHuman:
             for a, b in itertools.combinations(visits, 2):
                 if self._apart(a, b):
                     found.append(self._same_wall(a, b, fits[a], fits[b]))
+        for a, b in self.splits:
+            fa, fb = fit_points(self._points(poses, a)), fit_points(self._points(poses, b))
+            found.append(self._same_wall(a, b, fa, fb))
         for pair in self.scenario.feature_pairs:
             if pair.kind == "spacing":
                 continue
@@ -255,8 +284,11 @@ class SimulatedHuman:
         lo, hi = (float(q) for q in np.quantile(proj, self.along))
         if hi - lo < 0.3:
             return None
+        # Other copies of the wall: other passes (not the pass a third of a visit belongs to).
         others = [
-            self._points(poses, v) for v in self.visits if v.wall == visit.wall and v != visit
+            self._points(poses, v)
+            for v in self.visits
+            if v.wall == visit.wall and (v.last < visit.first or v.first > visit.last)
         ]
         clear = 6.0 * self.config.sigma_h  # twice the default candidate band
         best, best_gap = (lo, hi), -1.0
@@ -301,6 +333,8 @@ class SimulatedHuman:
             h = interpret(self.scenario.map, poses, drawn, self.config)
         except CorrectionRejected:
             return False
+        if (issue.a, issue.b) in self.splits:
+            return self._selects_split(poses, h, issue)
         a, b = self._visit_of(h.s_a), self._visit_of(h.s_b)
         if a is None or b is None or a == b:
             return False
@@ -317,6 +351,23 @@ class SimulatedHuman:
         angle = angle_between(fa, fb)
         error = angle if issue.mode is Mode.PARALLEL else 90.0 - angle
         return error > self.angle_threshold_deg
+
+    def _selects_split(self, poses: FloatArray, h: Interpretation, issue: Inconsistency) -> bool:
+        """For a bent pass: both selections on the wall meant, within that pass, and still
+        visibly not one straight line."""
+        m, wall = self.scenario.map, issue.a.wall
+        first, last = issue.a.first, issue.b.last
+        fits = []
+        for rows in (h.s_a, h.s_b):
+            if rows.shape[0] < self.config.min_points_per_pose:
+                return False
+            labels = self.scenario.wall_of_point[m.offsets[rows[:, 0]] + rows[:, 1]]
+            inside = (labels == wall) & (rows[:, 0] >= first) & (rows[:, 0] <= last)
+            if np.mean(inside) < 0.9:
+                return False
+            world = to_world(poses, rows[:, 0], m.points[m.offsets[rows[:, 0]] + rows[:, 1]])
+            fits.append(fit_points(world))
+        return self._same_wall(issue.a, issue.b, fits[0], fits[1]).score > 1.0
 
     def _visit_of(self, rows: IntArray, share: float = 0.9) -> Visit | None:
         """The visit that (nearly) all of the selected (pose, point) ``rows`` belong to."""
