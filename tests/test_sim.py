@@ -333,7 +333,8 @@ def test_human_straightens_a_bent_pass() -> None:
     assert issues
     worst = issues[0]
     assert (worst.a, worst.b) in human.splits  # the two ends of one pass
-    assert worst.a.wall == worst.b.wall and worst.mode is Mode.COLLINEAR
+    assert worst.a.wall == worst.b.wall
+    assert worst.mode is Mode.COLLINEAR
     assert worst.b.first - worst.a.last >= human.min_separation
     drawn = human.next_correction(s.map.poses)
     assert drawn is not None
