@@ -10,7 +10,14 @@ import numpy as np
 import pytest
 
 from hitl_slam.cli import main
-from hitl_slam.evaluation import LASER, real_log_scenario, run_evaluation, table
+from hitl_slam.evaluation import (
+    LASER,
+    ScenarioResult,
+    real_log_scenario,
+    run_evaluation,
+    table,
+    targets,
+)
 from hitl_slam.sim import Scenario
 from hitl_slam.sim.odometry import HeadingJump
 
@@ -29,6 +36,49 @@ def test_quick_evaluation_repairs_and_reports(tmp_path: Path) -> None:
     text = report.read_text()
     assert "| lost-poses-room |" in text
     assert "**mean**" in table(results)
+    assert "## Targets" in text
+    for r in results:
+        assert r.inconsistency_truth < r.inconsistency_after  # the true poses score lowest
+        assert r.best_reduction > r.inconsistency_reduction
+
+
+def _result(
+    name: str, angle: float, spacing: float, inc: tuple[float, float, float]
+) -> ScenarioResult:
+    return ScenarioResult(
+        name=name,
+        poses=10,
+        travel_m=1.0,
+        angle_samples=1,
+        spacing_samples=1,
+        angle_before=5.0,
+        angle_after=angle,
+        spacing_before=1.0,
+        spacing_after=spacing,
+        inconsistency_before=inc[0],
+        inconsistency_after=inc[1],
+        inconsistency_truth=inc[2],
+        ate_before=1.0,
+        ate_after=0.1,
+        corrections=2,
+        rejections=0,
+        finished=True,
+        time_s=1.0,
+        figure=None,
+    )
+
+
+def test_targets_report_each_figure_and_the_ceiling() -> None:
+    generated = _result("gen", 0.5, 0.01, (100.0, 4.0, 1.0))  # 96%, best 99%
+    real = _result("real", 1.3, 0.06, (100.0, 50.0, 40.0))  # 50%, best 60%
+    text = targets([generated, real])
+    assert "| mean corrected angular error <= 1.0 deg | 0.90 deg | yes |" in text
+    assert "| mean corrected translational error <= 0.03 m | 0.035 m | no |" in text
+    assert "| mean inconsistency reduction >= 91% | 73% | no |" in text
+    assert "reduce the inconsistency by 80% on average (real 60%)" in text
+    assert "On the generated maps alone" in text
+    assert "mean reduction is 96%" in text
+    assert "| **mean** |" in table([generated, real])
 
 
 def test_evaluate_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -25,7 +25,7 @@ from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
 from hitl_slam.map import Map
 
-__all__ = ["ScenarioResult", "real_log_scenario", "run_evaluation"]
+__all__ = ["ScenarioResult", "real_log_scenario", "run_evaluation", "table", "targets"]
 
 FloatArray = NDArray[np.float64]
 LASER = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "laser"
@@ -44,6 +44,7 @@ class ScenarioResult:
     spacing_after: float
     inconsistency_before: float
     inconsistency_after: float
+    inconsistency_truth: float  # the map on its true poses: what no repair can remove
     ate_before: float
     ate_after: float
     corrections: int
@@ -57,6 +58,13 @@ class ScenarioResult:
         if self.inconsistency_before <= 0:
             return 0.0
         return 1.0 - self.inconsistency_after / self.inconsistency_before
+
+    @property
+    def best_reduction(self) -> float:
+        """The reduction the true poses themselves show: the most a perfect repair reaches."""
+        if self.inconsistency_before <= 0:
+            return 0.0
+        return 1.0 - self.inconsistency_truth / self.inconsistency_before
 
 
 def real_log_scenario(
@@ -170,6 +178,7 @@ def evaluate_scenario(
     e0, e1 = scenario.errors(before), scenario.errors(after)
     inc0 = inconsistency(m, before, config)
     inc1 = inconsistency(m, after, config, like=inc0)
+    inc_truth = inconsistency(m, scenario.truth, config, like=inc0)
     figure = None
     if figures and out_dir is not None:
         from hitl_slam.plot import write_before_after
@@ -196,6 +205,7 @@ def evaluate_scenario(
         spacing_after=_nanmean(e1.translational),
         inconsistency_before=inc0.total_m2,
         inconsistency_after=inc1.total_m2,
+        inconsistency_truth=inc_truth.total_m2,
         ate_before=_ate(before, scenario.truth),
         ate_after=_ate(after, scenario.truth),
         corrections=result.used,
@@ -212,34 +222,86 @@ def _nanmean(values: FloatArray) -> float:
 
 
 def table(results: Sequence[ScenarioResult]) -> str:
-    """The Table-1-style summary, plus inconsistency, ATE and effort."""
+    """The Table-1-style summary, plus inconsistency (with what the true poses score), ATE and
+    effort."""
     head = (
         "| map | poses | angle samples | angle error in (deg) | angle error out (deg) "
         "| spacing samples | spacing error in (m) | spacing error out (m) "
-        "| inconsistency in (m^2) | out (m^2) | reduction | ATE in (m) | ATE out (m) "
-        "| corrections | time (s) |"
+        "| inconsistency in (m^2) | out (m^2) | truth (m^2) | reduction | best possible "
+        "| ATE in (m) | ATE out (m) | corrections | time (s) |"
     )
-    rows = [head, "|" + "---|" * 15]
+    rows = [head, "|" + "---|" * 17]
     for r in results:
         rows.append(
             f"| {r.name} | {r.poses} | {r.angle_samples} "
             f"| {r.angle_before:.2f} | {r.angle_after:.2f} "
             f"| {r.spacing_samples} | {r.spacing_before:.3f} | {r.spacing_after:.3f} "
             f"| {r.inconsistency_before:.1f} | {r.inconsistency_after:.1f} "
-            f"| {100 * r.inconsistency_reduction:.0f}% | {r.ate_before:.3f} | {r.ate_after:.3f} "
+            f"| {r.inconsistency_truth:.1f} | {100 * r.inconsistency_reduction:.0f}% "
+            f"| {100 * r.best_reduction:.0f}% | {r.ate_before:.3f} | {r.ate_after:.3f} "
             f"| {r.corrections} | {r.time_s:.1f} |"
         )
     if results:
         ang = _nanmean(np.array([r.angle_after for r in results]))
         sp = _nanmean(np.array([r.spacing_after for r in results]))
         red = float(np.mean([r.inconsistency_reduction for r in results]))
+        best = float(np.mean([r.best_reduction for r in results]))
         rows.append(
             f"| **mean** | | | {_nanmean(np.array([r.angle_before for r in results])):.2f} | "
             f"**{ang:.2f}** | | {_nanmean(np.array([r.spacing_before for r in results])):.3f} | "
-            f"**{sp:.3f}** | | | **{100 * red:.0f}%** | | | "
+            f"**{sp:.3f}** | | | | **{100 * red:.0f}%** | {100 * best:.0f}% | | | "
             f"{sum(r.corrections for r in results)} | |"
         )
     return "\n".join(rows)
+
+
+TARGET_ANGLE_DEG = 1.0
+TARGET_SPACING_M = 0.03
+TARGET_REDUCTION = 0.91
+
+
+def targets(results: Sequence[ScenarioResult]) -> str:
+    """The evaluation's targets (issue 4: mean corrected angular error <= 1.0 degree, mean
+    translational error <= 0.03 m, inconsistency reduced by >= 91 % on average), each with the
+    measured value and whether it is met; for the inconsistency also the ceiling set by the
+    true poses, so an unreachable target reads as such."""
+    if not results:
+        return ""
+    ang = _nanmean(np.array([r.angle_after for r in results]))
+    sp = _nanmean(np.array([r.spacing_after for r in results]))
+    red = float(np.mean([r.inconsistency_reduction for r in results]))
+    best = float(np.mean([r.best_reduction for r in results]))
+    generated = [r for r in results if r.inconsistency_truth < 0.05 * r.inconsistency_before]
+    lines = [
+        "| target | measured | met |",
+        "|---|---|---|",
+        f"| mean corrected angular error <= {TARGET_ANGLE_DEG:.1f} deg | {ang:.2f} deg "
+        f"| {'yes' if ang <= TARGET_ANGLE_DEG else 'no'} |",
+        f"| mean corrected translational error <= {TARGET_SPACING_M:.2f} m | {sp:.3f} m "
+        f"| {'yes' if sp <= TARGET_SPACING_M else 'no'} |",
+        f"| mean inconsistency reduction >= {100 * TARGET_REDUCTION:.0f}% | {100 * red:.0f}% "
+        f"| {'yes' if red >= TARGET_REDUCTION else 'no'} |",
+    ]
+    notes = []
+    if best < TARGET_REDUCTION:
+        low = ", ".join(
+            f"{r.name} {100 * r.best_reduction:.0f}%"
+            for r in results
+            if r.best_reduction < TARGET_REDUCTION
+        )
+        notes.append(
+            f"The true poses themselves reduce the inconsistency by {100 * best:.0f}% on "
+            f"average ({low}): the real logs' scans disagree even on their corrected poses "
+            "(moving people, glass, the corrected log's own residual error), so no repair can "
+            f"reach {100 * TARGET_REDUCTION:.0f}% on this set."
+        )
+    if generated:
+        gen = float(np.mean([r.inconsistency_reduction for r in generated]))
+        notes.append(
+            f"On the generated maps alone (the paper's LGRC-like setting, where the true map "
+            f"scores under 5% of the damaged one), the mean reduction is {100 * gen:.0f}%."
+        )
+    return "\n".join([*lines, "", *notes])
 
 
 def scenarios(
@@ -317,6 +379,10 @@ def run_evaluation(
         "parallel walls.",
         "",
         table(results),
+        "",
+        "## Targets",
+        "",
+        targets(results),
         "",
         "The paper (Nashed and Biswas, AAAI 2018), Table 1: mean angular error 6.74 -> 1.4",
         "degrees, mean translational error 2.71 -> 0.04 m; LGRC inconsistency reduced by 91% on",
