@@ -43,7 +43,7 @@ def test_quick_evaluation_repairs_and_reports(tmp_path: Path) -> None:
 
 
 def _result(
-    name: str, angle: float, spacing: float, inc: tuple[float, float, float]
+    name: str, angle: float, spacing: float, inc: tuple[float, float, float], real: bool
 ) -> ScenarioResult:
     return ScenarioResult(
         name=name,
@@ -65,12 +65,13 @@ def _result(
         finished=True,
         time_s=1.0,
         figure=None,
+        real_log=real,
     )
 
 
 def test_targets_report_each_figure_and_the_ceiling() -> None:
-    generated = _result("gen", 0.5, 0.01, (100.0, 4.0, 1.0))  # 96%, best 99%
-    real = _result("real", 1.3, 0.06, (100.0, 50.0, 40.0))  # 50%, best 60%
+    generated = _result("gen", 0.5, 0.01, (100.0, 4.0, 1.0), False)  # 96%, best 99%
+    real = _result("real", 1.3, 0.06, (100.0, 50.0, 40.0), True)  # 50%, best 60%
     text = targets([generated, real])
     assert "| mean corrected angular error <= 1.0 deg | 0.90 deg | yes |" in text
     assert "| mean corrected translational error <= 0.03 m | 0.035 m | no |" in text

@@ -10,6 +10,7 @@ in the corrected map (pseudo ground truth) by RANSAC.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import time
@@ -52,6 +53,7 @@ class ScenarioResult:
     finished: bool
     time_s: float
     figure: Path | None
+    real_log: bool = False  # a real log damaged by injected faults (else a generated world)
 
     @property
     def inconsistency_reduction(self) -> float:
@@ -271,7 +273,7 @@ def targets(results: Sequence[ScenarioResult]) -> str:
     sp = _nanmean(np.array([r.spacing_after for r in results]))
     red = float(np.mean([r.inconsistency_reduction for r in results]))
     best = float(np.mean([r.best_reduction for r in results]))
-    generated = [r for r in results if r.inconsistency_truth < 0.05 * r.inconsistency_before]
+    generated = [r for r in results if not r.real_log]
     lines = [
         "| target | measured | met |",
         "|---|---|---|",
@@ -299,7 +301,7 @@ def targets(results: Sequence[ScenarioResult]) -> str:
         gen = float(np.mean([r.inconsistency_reduction for r in generated]))
         notes.append(
             f"On the generated maps alone (the paper's LGRC-like setting, where the true map "
-            f"scores under 5% of the damaged one), the mean reduction is {100 * gen:.0f}%."
+            f"scores a few percent of the damaged one), the mean reduction is {100 * gen:.0f}%."
         )
     return "\n".join([*lines, "", *notes])
 
@@ -344,6 +346,29 @@ def scenarios(
     return out
 
 
+def _provenance(seed: int, quick: bool, seconds: float) -> str:
+    """One line on how, when and where the report was made."""
+    import datetime
+    import os
+    import platform
+
+    from hitl_slam import __version__
+
+    when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next(ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    flag = " --quick" if quick else ""
+    return (
+        f"Written by `hitl-slam evaluate{flag} --seed {seed}` (hitl-slam {__version__}) on "
+        f"{when}, on {os.cpu_count()} cores of {cpu}, Python {platform.python_version()}; "
+        f"{seconds / 60:.1f} minutes of repairs in all."
+    )
+
+
 def run_evaluation(
     out_dir: Path,
     *,
@@ -359,6 +384,7 @@ def run_evaluation(
         log(f"{name}: building")
         scenario = build()
         r = evaluate_scenario(scenario, out_dir, seed=seed, config=config, quick_human=real)
+        r = dataclasses.replace(r, real_log=real)
         log(
             f"{name}: {r.corrections} corrections, "
             f"angle {r.angle_before:.2f} -> {r.angle_after:.2f} deg, "
@@ -371,6 +397,8 @@ def run_evaluation(
 
     lines = [
         "# hitl-slam evaluation",
+        "",
+        _provenance(seed, quick, sum(r.time_s for r in results)),
         "",
         "Each map is damaged (odometry noise plus injected faults: heading jumps, slow drift),",
         "then repaired by a simulated person who draws one noisy correction at a time on the",
