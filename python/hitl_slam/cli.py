@@ -447,10 +447,57 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             "Room from the paper's Results ('lost poses', Fig. 8); the paper reports 5.97 m -> "
             "6.31 m against the true 6.33 m."
         )
-        print(
-            "To open the same map in the browser: hitl-slam serve "
-            f"{out / 'lost-poses.hitl'}  (the web UI; it is not part of this version yet)"
-        )
+        print(f"To open the same map in the browser: hitl-slam serve {out / 'lost-poses.hitl'}")
+    return 0
+
+
+_SERVE_EPILOG = """\
+examples:
+  hitl-slam serve --demo                       # the damaged lost-poses room, ./hitl-demo/
+  hitl-slam serve --demo --demo-world campus   # the 3,380-pose campus instead
+  hitl-slam serve run.clf.gz                   # creates run.hitl beside it (or reopens it)
+  hitl-slam serve run.hitl --journal fixes.jsonl   # step through a corrections file with l
+  hitl-slam serve run.hitl --port 0 --open     # any free port; open the browser
+
+Open the printed URL (http://127.0.0.1:8765/?token=...): the token keeps other pages and other
+users of this machine out; the page remembers it in a cookie. In the page, p toggles correction
+mode; then a drag draws a segment, its mode from the keys held: Ctrl colocation, Shift collinear,
+Shift+Alt perpendicular, Shift+Ctrl parallel. Two segments of one mode show what they select;
+p again applies the correction. u undoes, Shift+U redoes, v saves, ? lists every key.
+
+Every correction is journaled in the session file (.hitl) before the map changes, so Ctrl-C (or
+a crash) loses nothing acknowledged; serving the same file again continues where you left off.
+Save (v) writes NAME.txt (TUM), .g2o, .pgm and .yaml beside the session file.
+
+The server listens on 127.0.0.1 only, unless --host says otherwise; --no-token is allowed on
+loopback only.
+"""
+
+
+def _cmd_serve(args: argparse.Namespace) -> int:
+    from hitl_slam.web.server import run_server
+
+    if args.demo_world is not None and not args.demo:
+        raise InputError("--demo-world goes with --demo; add --demo, or drop --demo-world")
+    if args.demo and args.target is not None:
+        raise InputError(f"give {args.target} or --demo, not both")
+
+    def announce(message: str) -> None:
+        print(message, flush=True)
+
+    run_server(
+        args.target,
+        demo=(args.demo_world or "lost-poses") if args.demo else None,
+        seed=args.seed,
+        host=args.host,
+        port=args.port,
+        token=args.token,
+        no_token=args.no_token,
+        journal=args.journal,
+        open_browser=args.open,
+        announce=announce,
+    )
+    print("hitl-slam serve: stopped; every acknowledged change is in the session file", flush=True)
     return 0
 
 
@@ -603,6 +650,48 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     demo.add_argument("-q", "--quiet", action="store_true", help="only the table")
     demo.set_defaults(func=_cmd_demo)
+
+    serve = sub.add_parser(
+        "serve",
+        help="the browser UI: draw corrections on a map, undo, save (127.0.0.1 only)",
+        description=(
+            "Serve a map or session in the browser on this machine: draw corrections, see what "
+            "they select, apply, undo and redo them, save the corrected map."
+        ),
+        epilog=_SERVE_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    serve.add_argument(
+        "target",
+        nargs="?",
+        metavar="MAP_OR_SESSION",
+        help="a map (.covars, .clf/.log[.gz]; its session <stem>.hitl goes beside it) or a .hitl",
+    )
+    serve.add_argument(
+        "--demo", action="store_true", help="serve a generated damaged map in ./hitl-demo/"
+    )
+    serve.add_argument(
+        "--demo-world",
+        choices=["lost-poses", "campus"],
+        help="which generated map --demo serves (default lost-poses)",
+    )
+    serve.add_argument("--seed", type=int, default=0, help="random seed of --demo (default 0)")
+    serve.add_argument(
+        "--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)"
+    )
+    serve.add_argument(
+        "--port", type=int, default=8765, help="port (default 8765; 0 picks a free one)"
+    )
+    access = serve.add_mutually_exclusive_group()
+    access.add_argument("--token", metavar="T", help="the access token (default: a random one)")
+    access.add_argument(
+        "--no-token", action="store_true", help="no access token (loopback addresses only)"
+    )
+    serve.add_argument(
+        "--journal", metavar="C.jsonl", help="a corrections file to step through (key l)"
+    )
+    serve.add_argument("--open", action="store_true", help="open the page in the web browser")
+    serve.set_defaults(func=_cmd_serve)
 
     evaluate = sub.add_parser(
         "evaluate",
