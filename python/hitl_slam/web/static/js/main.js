@@ -1,0 +1,487 @@
+// The app: holds the server's state and the map on screen, reacts to input (interaction.js),
+// talks to the server (api.js), keeps in step with other tabs through a long poll on
+// /api/state?after=V, and schedules frames (view.js). The page's hooks for tests and
+// benchmarks (window.hitl) are in hooks.js.
+
+import * as api from "./api.js";
+import { Camera } from "./camera.js";
+import { PendingPair, sigmaForScale } from "./correction.js";
+import { installHooks } from "./hooks.js";
+import { attachInput } from "./interaction.js";
+import { followPoses, overlay } from "./overlay.js";
+import { Ui } from "./ui.js";
+import { MapView } from "./view.js";
+
+class App {
+  constructor() {
+    this.canvas = document.getElementById("map");
+    this.ui = new Ui();
+    this.camera = new Camera();
+    this.view = new MapView(this.canvas);
+    this.state = null; // latest State
+    this.version = -1; // state version whose map is on screen
+    this.points = null; // Float32Array (P*2), world coordinates of the map on screen
+    this.offsets = null;
+    this.poses = null; // Float32Array (N*3) of the map on screen
+    this.tracked = new Map(); // history index -> {a, b}: applied P_a / P_b on the current map
+    this.correcting = false;
+    this.selectedMode = null; // mode button for plain drags
+    this.pending = new PendingPair();
+    this.draft = null; // {mode, segment} while dragging
+    this.preview = null; // answer of /api/interpret for the pending pair
+    this.previewSeq = 0;
+    this.highlights = { a: 0, b: 0 };
+    this.busy = false; // an apply/undo/redo/step request in flight
+    this.loading = null; // the running map fetch (one at a time)
+    this.wanted = -1; // newest state version whose map should be fetched
+    this.measure = null; // {t0, t1, solveMs, version} of the apply awaiting its first frame
+    this.lastLoad = null; // {version, fetchMs, uploadMs, bytes} of the latest map fetched
+    this.labels = []; // "1a"/"1b" labels of the applied corrections
+    this.lastRedraw = null;
+    this.frameScheduled = false;
+    this.lastFrameTs = null;
+    this.rafs = [];
+    this.fitted = false;
+    let resolveReady;
+    this.ready = new Promise((resolve) => {
+      resolveReady = resolve;
+    });
+    this.resolveReady = resolveReady;
+  }
+
+  async start() {
+    this.resize();
+    attachInput(this, this.canvas);
+    this.bindButtons();
+    const state = await api.getState();
+    this.ui.setName(state.name, state.session);
+    this.setState(state);
+    await this.ensureMap(state.version);
+    this.syncLoop();
+  }
+
+  bindButtons() {
+    const on = (id, f) => document.getElementById(id).addEventListener("click", f);
+    on("btn-apply", () => this.apply());
+    on("btn-undo", () => this.undo());
+    on("btn-redo", () => this.redo());
+    on("btn-fit", () => this.fit());
+    on("btn-save", () => this.save());
+    on("btn-journal", () => this.journalStep());
+    on("btn-help", () => this.toggleHelp());
+    for (const b of document.querySelectorAll("button.mode")) {
+      b.addEventListener("click", () => {
+        const mode = this.selectedMode === b.dataset.mode ? null : b.dataset.mode;
+        this.selectedMode = mode;
+        if (mode) this.correcting = true;
+        this.ui.setSelectedMode(mode);
+        this.refreshIndicator();
+      });
+    }
+  }
+
+  // -- server state and map ------------------------------------------------------------------
+
+  setState(s) {
+    if (this.state && s.version < this.state.version) return; // an older answer, arrived late
+    this.state = s;
+    this.ui.setState(s);
+    const n = s.num_poses;
+    const flags = new Uint8Array(n);
+    for (const h of s.history) {
+      if (h.status !== "applied") continue;
+      for (const i of h.x_a || []) if (i < n) flags[i] = 1;
+      for (const i of h.x_b || []) if (i < n) flags[i] = 1;
+    }
+    this.view.setConstrained(flags);
+    this.constrained = flags;
+    this.refreshLines();
+    if (s.version > this.version) {
+      // Not every change moves the map (a rejection, the inconsistency arriving): the server's
+      // map_version says when the poses last changed; without it, a lone rejection is known
+      // not to move them. Then the arrays on screen stay and nothing is fetched.
+      const unmoved =
+        typeof s.map_version === "number"
+          ? s.map_version <= this.version
+          : s.version === this.version + 1 && s.last && s.last.kind === "reject";
+      if (unmoved && !this.loading) {
+        this.version = s.version;
+        this.requestRender();
+      } else {
+        this.ensureMap(s.version).catch((e) => this.error(e));
+      }
+    }
+  }
+
+  /** Fetches and uploads the map arrays until the map on screen is at least `version`. */
+  ensureMap(version) {
+    this.wanted = Math.max(this.wanted, version);
+    if (this.loading) return this.loading;
+    this.loading = (async () => {
+      try {
+        while (this.version < this.wanted) {
+          const t0 = performance.now();
+          const arrays = await api.getMapArrays(this.offsets === null);
+          const t1 = performance.now();
+          if (!arrays.consistent) continue; // points and poses straddled a change
+          if (arrays.offsets) this.offsets = arrays.offsets;
+          this.points = arrays.points;
+          this.tracked = followPoses(this.tracked, this.state, this.poses, arrays.poses);
+          this.poses = arrays.poses;
+          this.view.setMap(arrays.points, arrays.poses, this.constrained || new Uint8Array(0), this.offsets);
+          const t2 = performance.now();
+          this.version = Math.max(this.version, arrays.version);
+          this.wanted = Math.max(this.wanted, arrays.version);
+          this.lastLoad = {
+            version: arrays.version,
+            fetchMs: t1 - t0,
+            uploadMs: t2 - t1,
+            bytes: arrays.points.byteLength + arrays.poses.byteLength,
+          };
+          if (!this.fitted) {
+            this.fit();
+            this.fitted = true;
+          }
+          this.refreshLines();
+          // A preview shown over the old map would be stale: ask again on the new one.
+          if (this.pending.complete && this.preview) this.requestPreview();
+          else this.refreshHighlights();
+        }
+      } finally {
+        this.loading = null;
+      }
+    })();
+    return this.loading;
+  }
+
+  /** Keeps this tab in step with the server (and other tabs): long poll on the version. */
+  async syncLoop() {
+    let backoff = 500;
+    let failed = false;
+    for (;;) {
+      try {
+        const s = await api.getState(this.state ? this.state.version : null);
+        if (failed) this.ui.show("connected to the server again", "ok");
+        backoff = 500;
+        failed = false;
+        if (!this.state || s.version !== this.state.version) this.setState(s);
+      } catch (e) {
+        failed = true;
+        this.error(e);
+        await new Promise((r) => setTimeout(r, backoff));
+        backoff = Math.min(backoff * 2, 10000);
+      }
+    }
+  }
+
+  // -- drawing a correction ------------------------------------------------------------------
+
+  refreshIndicator() {
+    if (!this.correcting) {
+      this.ui.setIndicator(false, "view");
+    } else {
+      const mode = this.draft ? this.draft.mode : this.pending.mode || this.selectedMode;
+      const n = this.pending.segments.length;
+      const what = mode ? `${mode} ${n}/2` : "Ctrl / Shift + drag";
+      const sigma = `\u03c3h ${(100 * this.sigmaH()).toFixed(1)} cm`;
+      this.ui.setIndicator(true, `correcting \u00b7 ${what} \u00b7 ${sigma}`);
+    }
+    this.ui.setApplyReady(this.pending.complete && (!this.preview || this.preview.accepted));
+  }
+
+  sigmaH() {
+    return sigmaForScale(this.camera.scale);
+  }
+
+  setDraft(mode, segment) {
+    this.draft = mode ? { mode, segment } : null;
+    this.refreshLines();
+    this.refreshIndicator();
+  }
+
+  addSegment(mode, segment) {
+    this.draft = null;
+    if (this.pending.complete || (this.pending.mode && this.pending.mode !== mode)) {
+      this.clearPreview();
+    }
+    this.pending.add(mode, segment, this.sigmaH());
+    this.refreshLines();
+    this.refreshIndicator();
+    if (this.pending.complete) this.requestPreview();
+  }
+
+  async requestPreview() {
+    const seq = ++this.previewSeq;
+    const drawn = this.pending.toDrawn();
+    try {
+      const p = await api.interpret(drawn);
+      if (seq !== this.previewSeq) return; // the pair changed meanwhile
+      this.preview = p;
+      if (p.accepted) {
+        const n = (b64) => api.decodeIndices(b64).length;
+        this.ui.show(
+          `${p.mode}: ${n(p.s_a)} + ${n(p.s_b)} points selected; p or Apply corrects, Esc cancels`,
+          "info",
+        );
+      } else {
+        this.ui.show(`rejected: ${p.reason}`, "rejected");
+      }
+      this.refreshHighlights();
+      this.refreshLines();
+      this.refreshIndicator();
+    } catch (e) {
+      if (seq === this.previewSeq) this.error(e);
+    }
+  }
+
+  clearPreview() {
+    this.previewSeq++;
+    this.preview = null;
+    this.refreshHighlights();
+  }
+
+  /** S_a / S_b of the preview, gathered from the points on screen (global point indices). */
+  refreshHighlights() {
+    const p = this.preview;
+    let a = new Float32Array(0);
+    let b = new Float32Array(0);
+    if (p && p.accepted && this.points) {
+      const gather = (b64) => {
+        const idx = api.decodeIndices(b64);
+        const out = new Float32Array(2 * idx.length);
+        let k = 0;
+        for (const i of idx) {
+          if (2 * i + 1 >= this.points.length) continue;
+          out[k++] = this.points[2 * i];
+          out[k++] = this.points[2 * i + 1];
+        }
+        return out.subarray(0, k);
+      };
+      a = gather(p.s_a);
+      b = gather(p.s_b);
+    }
+    this.highlights = { a: a.length / 2, b: b.length / 2 };
+    this.view.setHighlights(a, b);
+    this.requestRender();
+  }
+
+  /** Rebuilds the overlay (lines and labels) from the corrections, the pair and the preview. */
+  refreshLines() {
+    const { under, over, labels } = overlay({
+      tracked: this.tracked,
+      pending: this.pending.segments,
+      pendingComplete: this.pending.complete,
+      pendingMode: this.pending.mode,
+      draft: this.draft,
+      preview: this.preview,
+    });
+    this.labels = labels;
+    this.view.setLines(under, over);
+    this.requestRender();
+  }
+
+  // -- commands ------------------------------------------------------------------------------
+
+  /** Key p: enter correction mode; with a pair drawn, apply it; otherwise leave. */
+  togglePOrApply() {
+    if (!this.correcting) {
+      this.correcting = true;
+      this.refreshIndicator();
+    } else if (this.pending.complete) {
+      this.apply();
+    } else {
+      this.leaveCorrecting();
+    }
+  }
+
+  leaveCorrecting() {
+    this.correcting = false;
+    this.selectedMode = null;
+    this.ui.setSelectedMode(null);
+    this.cancel(false);
+  }
+
+  /** Esc: close the help if it is open; else drop the pending segments and preview. */
+  escape() {
+    if (this.ui.helpVisible()) this.ui.toggleHelp(false);
+    else this.cancel();
+  }
+
+  /** Drop the pending segments and preview (correction mode stays on). */
+  cancel(say = true) {
+    const had = !this.pending.empty || this.draft;
+    this.pending.clear();
+    this.draft = null;
+    this.clearPreview();
+    this.refreshLines();
+    this.refreshIndicator();
+    if (say && had) this.ui.show("correction cancelled", "info");
+    else if (this.ui.message.kind === "rejected") this.ui.clearMessage();
+  }
+
+  async apply() {
+    if (!this.pending.complete) {
+      this.ui.show("draw two segments first: a, then b, with the same modifiers", "error");
+      return;
+    }
+    if (this.preview && !this.preview.accepted) {
+      this.ui.show(`rejected: ${this.preview.reason} (draw again)`, "rejected");
+      return;
+    }
+    if (this.busy) return;
+    const drawn = this.pending.toDrawn();
+    await this.command(async () => {
+      const t0 = performance.now();
+      const r = await api.applyCorrection(drawn);
+      const t1 = performance.now();
+      if (!r.accepted) {
+        this.ui.show(`rejected: ${r.reason}`, "rejected");
+        this.setState(r.state);
+        return;
+      }
+      this.measure = { t0, t1, solveMs: r.solve_ms, version: r.state.version };
+      this.leaveCorrecting();
+      const last = r.state.last;
+      this.ui.show(`applied ${drawn.mode} in ${r.solve_ms.toFixed(0)} ms (${last ? last.iterations : "?"} iterations)`, "ok");
+      this.setState(r.state);
+    });
+  }
+
+  undo() {
+    return this.command(async () => {
+      this.setState(await api.undo());
+      this.ui.show("undone", "info");
+    });
+  }
+
+  redo() {
+    return this.command(async () => {
+      this.setState(await api.redo());
+      this.ui.show("redone", "info");
+    });
+  }
+
+  journalStep() {
+    return this.command(async () => {
+      const r = await api.journalStep();
+      const j = r.state.journal;
+      if (r.accepted) this.ui.show(`journal: applied correction ${j.next} of ${j.loaded}`, "ok");
+      else this.ui.show(`journal correction ${j.next} of ${j.loaded} rejected: ${r.reason}`, "rejected");
+      this.setState(r.state);
+    });
+  }
+
+  save() {
+    return this.command(async () => {
+      const r = await api.save();
+      this.ui.show(`saved ${r.files.join(", ")}`, "ok");
+    });
+  }
+
+  /** Runs one server command at a time; its errors go to #message. */
+  async command(f) {
+    if (this.busy) {
+      this.ui.show("busy: the previous command is still running", "info");
+      return;
+    }
+    this.busy = true;
+    try {
+      await f();
+    } catch (e) {
+      this.error(e);
+    } finally {
+      this.busy = false;
+    }
+  }
+
+  error(e) {
+    this.ui.show(e instanceof api.ApiError ? e.message : `error: ${e.message || e}`, "error");
+    if (!(e instanceof api.ApiError)) console.error(e);
+  }
+
+  hint(text) {
+    this.ui.show(text, "info");
+  }
+
+  fit() {
+    // A wider margin than the default keeps the map clear of the message banner at the top.
+    if (this.state) this.camera.fit(this.state.bounds, 50);
+    this.requestRender();
+  }
+
+  toggleHelp() {
+    this.ui.toggleHelp();
+  }
+
+  setCursor([x, y]) {
+    this.ui.setCursor(x, y);
+  }
+
+  resize() {
+    const [w, h] = this.view.resize();
+    this.camera.resize(w, h);
+    this.requestRender();
+  }
+
+  // -- frames --------------------------------------------------------------------------------
+
+  requestRender() {
+    if (this.frameScheduled) return;
+    this.frameScheduled = true;
+    requestAnimationFrame((ts) => this.frame(ts));
+  }
+
+  frame(ts) {
+    this.frameScheduled = false;
+    if (this.lastFrameTs !== null && ts - this.lastFrameTs < 100) {
+      this.rafs.push(ts - this.lastFrameTs);
+      if (this.rafs.length > 600) this.rafs.splice(0, this.rafs.length - 600);
+    }
+    this.lastFrameTs = ts;
+    const [w, h] = this.view.resize();
+    this.camera.resize(w, h);
+    if (this.points === null) return;
+    const drawMs = this.view.render(this.camera);
+    this.ui.setScale(this.camera.scale);
+    this.ui.setLabels(
+      this.labels.map((l) => {
+        const [x, y] = this.camera.toScreen((l.at[0][0] + l.at[1][0]) / 2, (l.at[0][1] + l.at[1][1]) / 2);
+        return { text: l.text, side: l.side, x, y };
+      }),
+    );
+    if (this.correcting) this.refreshIndicator(); // sigma_h follows the zoom
+    const m = this.measure;
+    if (m && this.version >= m.version) {
+      const load = this.lastLoad && this.lastLoad.version >= m.version ? this.lastLoad : {};
+      this.lastRedraw = {
+        version: this.version,
+        totalMs: performance.now() - m.t0,
+        requestMs: m.t1 - m.t0,
+        solveMs: m.solveMs,
+        fetchMs: load.fetchMs ?? null,
+        uploadMs: load.uploadMs ?? null,
+        drawMs,
+        bytes: load.bytes ?? null,
+      };
+      this.measure = null;
+    }
+    if (this.version >= 0) this.resolveReady();
+  }
+}
+
+// Built here, so that a browser without WebGL gets a message rather than a blank page.
+function boot() {
+  try {
+    return new App();
+  } catch (e) {
+    const el = document.getElementById("message");
+    el.textContent = `hitl-slam cannot start: ${e.message}`;
+    el.className = "error";
+    el.hidden = false;
+    throw e;
+  }
+}
+
+const app = boot();
+installHooks(app);
+app.start().catch((e) => app.error(e));

@@ -1,0 +1,386 @@
+"""The web UI in a real browser: `hitl-slam serve --demo` in a subprocess, headless Chromium
+through Playwright, and a person's actions (key presses, mouse drags holding Ctrl / Shift / Alt)
+with the drawing taken from the simulated human of ``hitl_slam.sim``. Skipped without a browser,
+except on CI (CI=true or HITL_REQUIRE_BROWSER=1), where that fails.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from hitl_slam.corrections import DrawnCorrection, Mode
+from hitl_slam.corrections_file import write_corrections
+from hitl_slam.session import Session
+from hitl_slam.sim import SimulatedHuman, lost_poses_room
+from web_support import (
+    Server,
+    canvas_pixels,
+    changed_fraction,
+    chromium,
+    draw_segment,
+    open_page,
+    save_artifact,
+    serve,
+    to_client,
+    wait_until,
+    wait_version_above,
+    zoom_to,
+)
+
+POINTING_PX = 4.0  # the front end's sigma_h = POINTING_PX / (pixels per metre), js/correction.js
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    with chromium() as b:
+        yield b
+
+
+@pytest.fixture
+def demo(tmp_path: Path) -> Iterator[Server]:
+    with serve(tmp_path, "--demo") as server:
+        yield server
+
+
+@pytest.fixture(scope="module")
+def first_correction() -> DrawnCorrection:
+    """What the simulated human draws first on the damaged demo room: two passes along the
+    south wall, 26 degrees apart, collinear."""
+    scenario = lost_poses_room(0)
+    drawn = SimulatedHuman(scenario, 0).next_correction(scenario.map.poses)
+    assert drawn is not None
+    assert drawn.mode is Mode.COLLINEAR, drawn
+    return drawn
+
+
+def world(drawn: DrawnCorrection) -> tuple[list[list[float]], list[list[float]]]:
+    return [list(p) for p in drawn.a], [list(p) for p in drawn.b]
+
+
+def focus_on(page: Any, drawn: DrawnCorrection) -> None:
+    """Zoom in on the drawing as far as the human's accuracy asks (sigma_h -> pixels)."""
+    a, b = world(drawn)
+    centre = np.mean(np.array(a + b), axis=0)
+    sigma = drawn.sigma_h if drawn.sigma_h is not None else 0.1
+    zoom_to(page, centre, POINTING_PX / sigma * 1.0001)
+    assert page.evaluate("window.hitl.sigmaH()") <= sigma + 1e-9
+
+
+def draw_pair(page: Any, drawn: DrawnCorrection, modifiers: list[str]) -> None:
+    a, b = world(drawn)
+    draw_segment(page, a, modifiers)
+    draw_segment(page, b, modifiers)
+
+
+def apply_through_page(page: Any, drawn: DrawnCorrection) -> int:
+    """Zoom in, p, Shift-drag both segments, wait for the preview, p; the new version."""
+    focus_on(page, drawn)
+    page.keyboard.press("p")
+    draw_pair(page, drawn, ["Shift"])
+    page.wait_for_function("window.hitl.highlighted().a > 0 && window.hitl.highlighted().b > 0")
+    version = int(page.evaluate("window.hitl.version"))
+    page.keyboard.press("p")
+    return wait_version_above(page, version)
+
+
+def test_collinear_correction_from_the_simulated_human(
+    browser: Any, demo: Server, first_correction: DrawnCorrection
+) -> None:
+    page = open_page(browser, demo.url)
+    scenario = lost_poses_room(0)
+    # The page serves the very map the human looked at.
+    np.testing.assert_allclose(demo.poses(), scenario.map.poses, atol=1e-4)
+    before_path = save_artifact(page, "demo-before.png")
+
+    focus_on(page, first_correction)
+    before = canvas_pixels(page)
+    page.keyboard.press("p")
+    assert page.evaluate("window.hitl.correcting")
+    a, b = world(first_correction)
+    draw_segment(page, a, ["Shift"])
+    assert page.evaluate("window.hitl.mode") == "collinear"
+    assert page.evaluate("window.hitl.pending") == 1
+    draw_segment(page, b, ["Shift"])
+    page.wait_for_function("window.hitl.highlighted().a > 0 && window.hitl.highlighted().b > 0")
+    shown = page.evaluate("window.hitl.highlighted()")
+    preview = page.evaluate("window.hitl.preview")
+    assert preview["accepted"], preview
+    assert shown["a"] > 50, shown
+    assert shown["b"] > 50, shown
+    save_artifact(page, "demo-preview.png")
+
+    version = int(page.evaluate("window.hitl.version"))
+    page.keyboard.press("p")
+    wait_version_above(page, version)
+    page.wait_for_function("window.hitl.lastRedrawMs !== null")
+    assert page.evaluate("window.hitl.message.kind") == "ok"
+    assert not page.evaluate("window.hitl.correcting")
+
+    relations = demo.relations()
+    assert len(relations) == 1, relations
+    (relation,) = relations
+    assert relation["mode"] == "collinear"
+    assert relation["angle_deg"] < 0.3, relation
+    assert relation["offset_m"] is not None
+    assert relation["offset_m"] < 0.02, relation
+    assert demo.state()["applied"] == 1
+
+    after = canvas_pixels(page)
+    moved = changed_fraction(before, after)
+    assert moved > 0.01, f"only {moved:.2%} of the canvas changed after the correction"
+
+    page.keyboard.press("f")
+    page.wait_for_timeout(150)
+    corrected_path = save_artifact(page, "corrected-demo.png")
+    assert before_path.stat().st_size > 10_000
+    assert corrected_path.stat().st_size > 10_000
+    status = page.locator("#statusbar").inner_text()
+    assert "1 correction" in status, status
+    assert "apply" in status, status
+    assert page.errors == []
+
+
+def test_undo_restores_the_map_exactly_and_redo_brings_it_back(
+    browser: Any, demo: Server, first_correction: DrawnCorrection
+) -> None:
+    page = open_page(browser, demo.url)
+    original = demo.poses_bytes()
+    apply_through_page(page, first_correction)
+    corrected = demo.poses_bytes()
+    assert corrected != original
+
+    version = int(page.evaluate("window.hitl.version"))
+    page.keyboard.press("u")
+    version = wait_version_above(page, version)
+    assert demo.poses_bytes() == original
+    assert demo.state()["applied"] == 0
+    # The page shows the restored map: what it holds is what the server serves.
+    assert page.evaluate("window.hitl.state.can_redo")
+
+    page.keyboard.press("Shift+U")
+    wait_version_above(page, version)
+    assert demo.poses_bytes() == corrected
+    assert demo.state()["applied"] == 1
+    assert page.errors == []
+
+
+def test_a_drawing_over_empty_space_is_rejected_and_changes_nothing(
+    browser: Any, demo: Server
+) -> None:
+    page = open_page(browser, demo.url)
+    x0, y0, x1, y1 = demo.state()["bounds"]
+    # Zoom out about the map's middle until there is room beside it.
+    middle = to_client(page, ((x0 + x1) / 2, (y0 + y1) / 2))
+    page.mouse.move(*middle)
+    for _ in range(4):
+        page.mouse.wheel(0, 240)
+    page.wait_for_timeout(100)
+    width = x1 - x0
+    a = [[x1 + 0.4 * width, y0], [x1 + 0.4 * width, y1]]
+    b = [[x0 - 0.4 * width, y0], [x0 - 0.4 * width, y1]]
+    box = page.locator("#map").bounding_box()
+    for point in a + b:
+        cx, cy = to_client(page, point)
+        assert box["x"] < cx < box["x"] + box["width"]
+        assert box["y"] < cy < box["y"] + box["height"]
+    poses, applied = demo.poses_bytes(), demo.state()["applied"]
+
+    page.keyboard.press("p")
+    draw_segment(page, a, ["Shift"])
+    draw_segment(page, b, ["Shift"])
+    message = page.locator("#message.rejected")
+    message.wait_for(state="visible")
+    assert "rejected" in message.inner_text()
+    assert len(message.inner_text()) > 20
+    assert page.evaluate("window.hitl.highlighted()") == {"a": 0, "b": 0}
+    page.keyboard.press("p")  # trying to apply it anyway
+    page.wait_for_timeout(300)
+    assert page.locator("#message.rejected").is_visible()
+    assert demo.poses_bytes() == poses
+    assert demo.state()["applied"] == applied
+    assert page.errors == []
+
+
+@pytest.mark.parametrize(
+    ("modifiers", "mode"),
+    [
+        (["Control"], "colocation"),
+        (["Shift"], "collinear"),
+        (["Shift", "Alt"], "perpendicular"),
+        (["Shift", "Control"], "parallel"),
+    ],
+)
+def test_modifier_keys_pick_the_mode(
+    browser: Any,
+    shared_demo: Server,
+    first_correction: DrawnCorrection,
+    modifiers: list[str],
+    mode: str,
+) -> None:
+    page = open_page(browser, shared_demo.url)
+    a, b = world(first_correction)
+    page.keyboard.press("p")
+    draw_segment(page, a, modifiers)
+    assert page.evaluate("window.hitl.mode") == mode
+    with page.expect_request(
+        lambda r: r.url.endswith("/api/interpret") and r.method == "POST"
+    ) as request:
+        draw_segment(page, b, modifiers)
+    body = json.loads(request.value.post_data)
+    assert body["mode"] == mode
+    np.testing.assert_allclose(body["a"], a, atol=0.03)
+    np.testing.assert_allclose(body["b"], b, atol=0.03)
+    assert 0 < body["sigma_h"] <= 0.1
+    page.context.close()
+
+
+@pytest.fixture(scope="module")
+def shared_demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    """One server for the tests that only preview (nothing they do changes the map)."""
+    with serve(tmp_path_factory.mktemp("shared"), "--demo") as server:
+        yield server
+
+
+def test_escape_help_buttons_errors_and_two_tabs(
+    browser: Any, demo: Server, first_correction: DrawnCorrection
+) -> None:
+    page = open_page(browser, demo.url)
+    # The second tab is a second window: Chromium throttles a tab in the background, as it would
+    # for a person looking at the other one, and that is not what this test is about.
+    other = open_page(browser, demo.url)
+    posted: list[str] = []
+    page.on("request", lambda r: posted.append(r.url) if r.method == "POST" else None)
+
+    # Esc drops the pending pair and its preview; p then leaves correction mode, sending nothing.
+    page.keyboard.press("p")
+    draw_pair(page, first_correction, ["Shift"])
+    page.wait_for_function("window.hitl.highlighted().a > 0")
+    page.keyboard.press("Escape")
+    assert page.evaluate("window.hitl.highlighted()") == {"a": 0, "b": 0}
+    assert page.evaluate("window.hitl.mode") is None
+    assert page.evaluate("window.hitl.pending") == 0
+    page.keyboard.press("p")
+    assert not page.evaluate("window.hitl.correcting")
+    assert not [u for u in posted if u.endswith("/api/corrections")]
+
+    # ? shows and hides the help, as does its button.
+    help_panel = page.locator("#help")
+    assert help_panel.is_hidden()
+    page.keyboard.press("?")
+    assert help_panel.is_visible()
+    assert "Shift" in help_panel.inner_text()
+    page.keyboard.press("?")
+    assert help_panel.is_hidden()
+    page.click("#btn-help")
+    assert help_panel.is_visible()
+    page.click("#btn-help")
+    assert help_panel.is_hidden()
+    page.keyboard.press("?")
+    page.keyboard.press("Escape")
+    assert help_panel.is_hidden()
+
+    # Server errors are shown: 409 from the server, a 403 and a dropped connection (simulated).
+    page.keyboard.press("u")
+    page.locator("#message.error").wait_for(state="visible")
+    assert "nothing to undo" in page.locator("#message").inner_text()
+    page.route(
+        "**/api/redo",
+        lambda route: route.fulfill(status=403, body='{"detail": "wrong or missing token"}'),
+    )
+    page.keyboard.press("Shift+U")
+    page.wait_for_function("window.hitl.message.text.includes('access denied')")
+    page.unroute("**/api/redo")
+    page.route("**/api/redo", lambda route: route.abort("connectionrefused"))
+    page.keyboard.press("Shift+U")
+    page.wait_for_function("window.hitl.message.text.includes('cannot reach')")
+    page.unroute("**/api/redo")
+
+    # Mode button + plain drags + Apply, no modifier keys; the other tab follows.
+    focus_on(page, first_correction)
+    page.click("button.mode[data-mode=collinear]")
+    assert page.evaluate("window.hitl.correcting")
+    draw_pair(page, first_correction, [])
+    page.wait_for_function("window.hitl.highlighted().b > 0")
+    assert page.evaluate("window.hitl.mode") == "collinear"
+    version = int(page.evaluate("window.hitl.version"))
+    page.click("#btn-apply")
+    version = wait_version_above(page, version)
+    assert demo.state()["applied"] == 1
+    other.wait_for_function(f"window.hitl.version >= {version}", timeout=5_000)
+    assert other.evaluate("window.hitl.state.applied") == 1
+    assert "1 correction" in other.locator("#st-applied").inner_text()
+
+    # ... and the other way round: undo in the second tab, the first one follows.
+    other.keyboard.press("u")
+    page.wait_for_function(f"window.hitl.version > {version}", timeout=5_000)
+    page.wait_for_function("window.hitl.state.applied === 0", timeout=5_000)
+    assert page.errors == []
+    assert other.errors == []
+
+
+def test_wheel_zooms_about_the_cursor_and_drag_pans(browser: Any, shared_demo: Server) -> None:
+    page = open_page(browser, shared_demo.url)
+    box = page.locator("#map").bounding_box()
+    spot = (box["x"] + 0.3 * box["width"], box["y"] + 0.7 * box["height"])
+    under = page.evaluate("([x, y]) => window.hitl.clientToWorld(x, y)", list(spot))
+    page.mouse.move(*spot)
+    page.mouse.wheel(0, -300)
+    page.wait_for_timeout(100)
+    np.testing.assert_allclose(to_client(page, under), spot, atol=0.5)
+    scale = page.evaluate("window.hitl.worldToClient(1, 0)[0] - window.hitl.worldToClient(0, 0)[0]")
+    page.mouse.move(*spot)
+    page.mouse.down()
+    page.mouse.move(spot[0] + 100, spot[1] - 50, steps=5)
+    page.mouse.up()
+    np.testing.assert_allclose(to_client(page, under), (spot[0] + 100, spot[1] - 50), atol=0.5)
+    assert page.evaluate(
+        "window.hitl.worldToClient(1, 0)[0] - window.hitl.worldToClient(0, 0)[0]"
+    ) == pytest.approx(scale)
+    page.context.close()
+
+
+def test_save_and_journal_step(tmp_path: Path, browser: Any) -> None:
+    # A corrections file of the human's first two drawings, and where they lead.
+    scenario = lost_poses_room(0)
+    human = SimulatedHuman(scenario, 0)
+    steps: list[DrawnCorrection] = []
+    with Session.new(scenario.map) as reference:
+        for _ in range(2):
+            drawn = human.next_correction(reference.poses)
+            assert drawn is not None
+            reference.apply(drawn)
+            steps.append(drawn)
+        expected = reference.poses.copy()
+    journal = tmp_path / "fixes.jsonl"
+    write_corrections(journal, steps)
+
+    with serve(tmp_path, "--demo", "--journal", str(journal)) as server:
+        page = open_page(browser, server.url)
+        assert page.locator("#st-journal").inner_text() == "journal 0/2"
+        for k in (1, 2):
+            version = int(page.evaluate("window.hitl.version"))
+            page.keyboard.press("l")
+            wait_version_above(page, version)
+            state = server.state()
+            assert state["journal"]["next"] == k
+            assert state["applied"] == k
+            assert page.locator("#st-journal").inner_text() == f"journal {k}/2"
+        np.testing.assert_allclose(server.poses(), expected, atol=1e-4)
+        page.keyboard.press("l")  # nothing left: the server says so (409), the page shows it
+        page.locator("#message.error").wait_for(state="visible")
+
+        folder = tmp_path / "hitl-demo"
+        assert not list(folder.glob("*-corrected.*"))
+        page.keyboard.press("v")
+        page.locator("#message.ok").wait_for(state="visible")
+        assert wait_until(lambda: len(list(folder.glob("lost-poses-corrected.*"))) == 4)
+        names = sorted(p.name for p in folder.glob("lost-poses-corrected.*"))
+        assert names == [f"lost-poses-corrected.{e}" for e in ("g2o", "pgm", "txt", "yaml")]
+        assert "saved" in page.locator("#message").inner_text()
+        assert page.errors == []
