@@ -44,10 +44,13 @@ def to_world(
     poses: NDArray[np.float64], owners: NDArray[np.int64], points: NDArray[np.float64]
 ) -> NDArray[np.float64]:
     """``p_world = R(theta) p + t`` for robot-frame ``points`` (K, 2) seen by ``poses[owners]``."""
-    p = poses[owners]
-    c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
+    # cos/sin once per pose, not once per point: maps have ~100 points per pose.
+    c, s = np.cos(poses[:, 2])[owners], np.sin(poses[:, 2])[owners]
     x, y = points[:, 0], points[:, 1]
-    return np.stack([c * x - s * y + p[:, 0], s * x + c * y + p[:, 1]], axis=1)
+    out = np.empty((points.shape[0], 2), dtype=np.float64)
+    out[:, 0] = c * x - s * y + poses[owners, 0]
+    out[:, 1] = s * x + c * y + poses[owners, 1]
+    return out
 
 
 @dataclass(eq=False)

@@ -521,9 +521,9 @@ class SessionHost:
             world = to_world(poses, self._owner, self._map.points)
             points_f32 = world.astype("<f4").tobytes()
             poses_f32 = poses.astype("<f4").tobytes()
-            xy = np.concatenate([world, poses[:, :2]])
-            low, high = xy.min(axis=0), xy.max(axis=0)
-            bounds = (float(low[0]), float(low[1]), float(high[0]), float(high[1]))
+            # Column by column: a reduction over axis 0 of an (N, 2) array is strided and slow.
+            xs, ys = (np.concatenate([world[:, k], poses[:, k]]) for k in (0, 1))
+            bounds = (float(xs.min()), float(ys.min()), float(xs.max()), float(ys.max()))
         with self._lock:
             known = self._metric_values.get(_pose_key(poses))
         return Snapshot(
