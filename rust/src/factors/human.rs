@@ -161,7 +161,10 @@ pub struct CentroidShare {
     pub sum: [f64; 2],
 }
 
-/// R_p: the relation between the two lines of a correction.
+/// R_p: the relation between the two lines of a correction. Colocation and collinear depend on
+/// every observing pose through the centroids; on real corrections (hundreds of poses) that
+/// makes the factor wide (`Factor::is_wide`), and the solver adds its rows as a low-rank update
+/// instead of a dense block of the normal equations.
 #[derive(Clone, Debug)]
 pub struct RelationFactor {
     mode: RelationMode,

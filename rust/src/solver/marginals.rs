@@ -1,5 +1,6 @@
 //! Marginal covariances of selected variables: blocks of `H^-1` at a solution, from the same
-//! sparse Cholesky factorization the solver uses (one triangular solve pair per column).
+//! sparse Cholesky factorization the solver uses (one triangular solve pair per column; with
+//! wide factors, a refined Woodbury solve per column, see `woodbury`).
 //! In the solver's chart, so a pose's covariance is in its own body frame, as GTSAM's `Marginals`.
 
 use crate::error::{HitlError, Result};

@@ -1,11 +1,13 @@
 //! Sparse nonlinear least squares: the normal-equation pattern with its cached symbolic
-//! Cholesky analysis (`pattern`), Gauss-Newton / Levenberg-Marquardt (`levenberg_marquardt`),
-//! the report, and marginal covariances.
+//! Cholesky analysis (`pattern`), the low-rank term of wide factors solved by Woodbury
+//! (`woodbury`), Gauss-Newton / Levenberg-Marquardt (`levenberg_marquardt`), the report, and
+//! marginal covariances.
 
 mod levenberg_marquardt;
 mod marginals;
 mod pattern;
 mod report;
+mod woodbury;
 
 pub use levenberg_marquardt::{optimize, Method, SolverParams};
 pub use marginals::marginal_covariances;
