@@ -700,3 +700,46 @@ def test_demo_points_to_the_serve_command(
     text = capsys.readouterr().out
     assert f"hitl-slam serve {out / 'lost-poses.hitl'}\n" in text
     assert "not part of this version" not in text
+
+
+def test_other_requests_are_answered_while_a_correction_computes(
+    room: Scenario, drawings: list[DrawnCorrection], tmp_path: Path
+) -> None:
+    # An applier that takes a second (without the GIL, like the Rust solve): meanwhile the state,
+    # the arrays and the long-poll answer at once, with the map from before the correction.
+    from hitl_slam.pipeline import apply_correction
+
+    started = threading.Event()
+
+    def slow(*args: Any) -> Any:
+        started.set()
+        time.sleep(1.0)
+        return apply_correction(*args)
+
+    session = Session.new(room.map, tmp_path / "slow.hitl", applier=slow)
+    h = SessionHost(session, poll_timeout=5.0, metrics=False)
+    try:
+        with TestClient(create_app(h, token=None), base_url=BASE) as c:
+            before = c.get("/api/map/poses").content
+            done: dict[str, Any] = {}
+
+            def send() -> None:
+                done["answer"] = c.post("/api/corrections", json=as_json(drawings[0])).json()
+                done["at"] = time.monotonic()
+
+            sender = threading.Thread(target=send)
+            sender.start()
+            assert started.wait(10)
+            t0 = time.monotonic()
+            state = c.get("/api/state").json()
+            poses = c.get("/api/map/poses").content
+            answered = time.monotonic()
+            sender.join(30)
+            assert answered - t0 < 0.5  # not queued behind the solve
+            assert answered < done["at"]
+            assert state["applied"] == 0
+            assert poses == before
+            assert done["answer"]["accepted"] is True
+            assert c.get("/api/state").json()["applied"] == 1
+    finally:
+        h.close()

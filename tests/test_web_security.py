@@ -586,8 +586,8 @@ def _last_event(session_file: Path) -> tuple[int, str]:
 
 
 def test_sigkill_during_a_correction_loses_nothing_acknowledged(tmp_path: Path) -> None:
-    # The campus (3,380 poses, 440k points): a correction computes for about half a second, a
-    # window in which to kill the server once its request is journaled.
+    # The campus (3,380 poses, 440k points): a correction computes for tens of milliseconds, a
+    # window in which to kill the server once its request is journaled (polled every 2 ms).
     scenario = campus(0)
     human = SimulatedHuman(scenario, 0)
     session_file = tmp_path / "hitl-demo" / "campus.hitl"
@@ -607,27 +607,10 @@ def test_sigkill_during_a_correction_loses_nothing_acknowledged(tmp_path: Path) 
         assert "created the demo session" in "".join(server.lines)
         answer = server.api("POST", "/api/corrections", json=draw(server)).json()
         assert answer["accepted"] is True  # acknowledged
-        # The second one: while it computes, the server keeps answering (the solve runs in the
-        # threadpool without the GIL), with the state from before it.
-        second = draw(server)
-        seq_1, _ = _last_event(session_file)
-        done: dict[str, Any] = {}
-
-        def send_second() -> None:
-            done["answer"] = server.api("POST", "/api/corrections", json=second).json()
-            done["at"] = time.monotonic()
-
-        sender = threading.Thread(target=send_second)
-        sender.start()
-        deadline = time.monotonic() + 60
-        while _last_event(session_file)[0] == seq_1 and time.monotonic() < deadline:
-            time.sleep(0.002)
-        during = server.api("GET", "/api/state").json()
-        answered_at = time.monotonic()
-        sender.join(timeout=120)
-        assert done["answer"]["accepted"] is True  # acknowledged
-        assert answered_at < done["at"]
-        assert during["applied"] == 1
+        # The second one, acknowledged too. (That other requests are answered while a
+        # correction computes is tested deterministically in test_web_api.py.)
+        answer = server.api("POST", "/api/corrections", json=draw(server)).json()
+        assert answer["accepted"] is True
         state_2 = server.api("GET", "/api/state").json()
         poses_2 = server.api("GET", "/api/map/poses").content
         seq_2, kind_2 = _last_event(session_file)
