@@ -16,7 +16,7 @@
 
 use super::grid::GridIndex;
 use super::{
-    canonical_normal, dot, sub, tangent, world_points, Point, Points, Segment, SegmentFrame,
+    canonical_normal, dot, sub, tangent, world_points_near, Point, Points, Segment, SegmentFrame,
 };
 use crate::error::{HitlError, Result};
 
@@ -347,8 +347,10 @@ pub fn em_fit_segments(
 }
 
 /// `em_fit_segments` on a map as stored: `poses` `(N, 3)` flat, robot-frame `points` and
-/// `offsets` `(N + 1,)` (pose i owns rows `offsets[i]..offsets[i + 1]`). The world points and
-/// their bounds come from one pass, so the grid costs no extra pass over the map.
+/// `offsets` `(N + 1,)` (pose i owns rows `offsets[i]..offsets[i + 1]`); candidate indices are
+/// map rows. Only the scans that can reach the segments are transformed and indexed
+/// ([`world_points_near`]): the same candidates, in the same order, as over the whole map, so
+/// the fits are identical, while a drawing on a map of millions of points costs a few scans.
 pub fn em_fit_scans(
     poses: &[f64],
     points: Points<'_>,
@@ -360,12 +362,21 @@ pub fn em_fit_scans(
     for seg in segments {
         SegmentFrame::new(seg)?;
     }
-    let world = world_points(poses, points, offsets)?;
+    let (world, rows) = world_points_near(poses, points, offsets, segments, params.band)?;
     let world_pts = Points::new(&world.flat)?;
     let grid = GridIndex::build_in(world_pts, params.band, world.bounds)?;
     segments
         .iter()
-        .map(|seg| em_fit(world_pts, &grid, seg, params))
+        .map(|seg| {
+            let mut fit = em_fit(world_pts, &grid, seg, params)?;
+            // Kept rows ascend, so the candidates stay in ascending order.
+            for c in &mut fit.candidates {
+                *c = rows.get(*c).copied().ok_or_else(|| {
+                    HitlError::Solver("a candidate outside the indexed scans".into())
+                })?;
+            }
+            Ok(fit)
+        })
         .collect()
 }
 
@@ -617,5 +628,77 @@ mod tests {
         assert!(line_fit(one, &[1.0, 1.0], &seg, 0.3).is_err());
         assert!(line_fit(one, &[f64::NAN], &seg, 0.3).is_err());
         assert!(em_fit_segments(pts, &[Segment::new([0.0, 0.0], [0.0, 0.0])], &params()).is_err());
+    }
+
+    #[test]
+    fn scans_out_of_reach_change_nothing() {
+        // Scans of a wall near the segments, many far away (some very long beams): the fits over
+        // the scans that can reach equal those over the whole map bit for bit, candidates as map
+        // rows in ascending order.
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let (mut poses, mut pts, mut offsets) = (Vec::new(), Vec::new(), vec![0i64]);
+        for i in 0..400 {
+            let far = i % 3 != 0;
+            let (x, y, th) = if far {
+                (
+                    rng.random_range(-200.0..200.0),
+                    rng.random_range(20.0..200.0),
+                    0.3,
+                )
+            } else {
+                (
+                    rng.random_range(-3.0..3.0),
+                    1.5,
+                    rng.random_range(-0.5..0.5),
+                )
+            };
+            poses.extend([x, y, th]);
+            for k in 0..rng.random_range(0..30) {
+                // A wall at world y = 0 as seen from (x, y, th), plus clutter; every tenth
+                // scan of the far ones has a 500 m beam.
+                let (wx, wy) = if far && k == 0 && i % 10 == 1 {
+                    (x + 500.0, y)
+                } else if rng.random_range(0.0..1.0) < 0.8 {
+                    (x + rng.random_range(-4.0..4.0), 0.01 * normal(&mut rng))
+                } else {
+                    (x + rng.random_range(-4.0..4.0), rng.random_range(-1.0..1.0))
+                };
+                let (dx, dy) = (wx - x, wy - y);
+                let (s, c) = f64::sin_cos(th);
+                pts.extend([c * dx + s * dy, -s * dx + c * dy]);
+            }
+            offsets.push((pts.len() / 2) as i64);
+        }
+        let segs = [
+            Segment::new([-2.0, 0.05], [2.0, -0.02]),
+            Segment::new([1.0, 0.0], [5.0, 0.1]),
+        ];
+        let p = Points::new(&pts).unwrap();
+        let culled = em_fit_scans(&poses, p, &offsets, &segs, &params()).unwrap();
+        let world = super::super::world_points(&poses, p, &offsets).unwrap();
+        let whole = em_fit_segments(Points::new(&world.flat).unwrap(), &segs, &params()).unwrap();
+        assert_eq!(culled, whole);
+        assert!(culled.iter().all(|f| f.candidates.len() > 20));
+        let (kept, rows) =
+            super::super::world_points_near(&poses, p, &offsets, &segs, 0.3).unwrap();
+        assert!(
+            rows.len() < pts.len() / 2 / 2,
+            "{} of {}",
+            rows.len(),
+            pts.len() / 2
+        );
+        assert_eq!(kept.flat.len(), 2 * rows.len());
+        // A non-finite point is an error even in a scan out of reach.
+        let mut bad = pts.clone();
+        let last = bad.len() - 1;
+        bad[last] = f64::NAN;
+        let err = em_fit_scans(
+            &poses,
+            Points::new(&bad).unwrap(),
+            &offsets,
+            &segs,
+            &params(),
+        );
+        assert!(err.unwrap_err().to_string().contains("not finite"));
     }
 }

@@ -155,6 +155,123 @@ pub struct WorldPoints {
 /// `poses` is `(N, 3)` flat (x, y, theta), `points` `(P, 2)` robot-frame points pose by pose,
 /// and pose i owns rows `offsets[i]..offsets[i + 1]`.
 pub fn world_points(poses: &[f64], points: Points<'_>, offsets: &[i64]) -> Result<WorldPoints> {
+    check_layout(poses, points, offsets)?;
+    let mut out = vec![0.0; points.flat.len()];
+    let mut bounds = Bounds::EMPTY;
+    let mut finite = true;
+    for (i, (pose, w)) in poses.chunks_exact(3).zip(offsets.windows(2)).enumerate() {
+        let (x, y, theta) = (pose[0], pose[1], pose[2]);
+        // Both bounds lie in 0..=P: check_layout checked the ends and that the sequence is
+        // monotone.
+        let range = 2 * w[0] as usize..2 * w[1] as usize;
+        let (Some(src), Some(dst)) = (points.flat.get(range.clone()), out.get_mut(range)) else {
+            return Err(HitlError::Input(format!(
+                "offsets of pose {i} point past the end of the points"
+            )));
+        };
+        let (s, c) = theta.sin_cos();
+        for (p, q) in src.chunks_exact(2).zip(dst.chunks_exact_mut(2)) {
+            let world = [c * p[0] - s * p[1] + x, s * p[0] + c * p[1] + y];
+            finite &= world[0].is_finite() & world[1].is_finite();
+            bounds.add(world);
+            q.copy_from_slice(&world);
+        }
+    }
+    if !finite {
+        Points::new(&out)?.check_finite("point")?;
+    }
+    Ok(WorldPoints { flat: out, bounds })
+}
+
+/// Consecutive points of a scan tested together by [`world_points_near`]: neighbouring beams
+/// mostly hit one surface, so a block's bounding circle is small.
+const NEAR_BLOCK: usize = 32;
+
+/// [`world_points`] of only the points that can lie within `band` of one of `segments`, with
+/// the map row of each point kept. Each scan is cut into blocks of [`NEAR_BLOCK`] consecutive
+/// points; every point of a block lies within the block's bounding circle (centre and radius
+/// from its robot-frame bounding box; the transform is rigid), so a block whose circle stays
+/// more than `band` from every segment holds no candidate. The candidates are exactly those of
+/// the whole map, in the same order, at a fraction of the cost on a large map. Every point is
+/// still checked finite.
+pub fn world_points_near(
+    poses: &[f64],
+    points: Points<'_>,
+    offsets: &[i64],
+    segments: &[Segment],
+    band: f64,
+) -> Result<(WorldPoints, Vec<usize>)> {
+    check_layout(poses, points, offsets)?;
+    let mut out = Vec::new();
+    let mut rows = Vec::new();
+    let mut bounds = Bounds::EMPTY;
+    for (i, (pose, w)) in poses.chunks_exact(3).zip(offsets.windows(2)).enumerate() {
+        let (x, y, theta) = (pose[0], pose[1], pose[2]);
+        let first = w[0] as usize;
+        let Some(src) = points.flat.get(2 * first..2 * w[1] as usize) else {
+            return Err(HitlError::Input(format!(
+                "offsets of pose {i} point past the end of the points"
+            )));
+        };
+        let (s, c) = theta.sin_cos();
+        for (b, block) in src.chunks(2 * NEAR_BLOCK).enumerate() {
+            let start = first + b * NEAR_BLOCK;
+            let mut boxed = Bounds::EMPTY;
+            for (k, p) in block.chunks_exact(2).enumerate() {
+                if !(p[0].is_finite() && p[1].is_finite()) {
+                    return Err(HitlError::Input(format!(
+                        "point row {} is not finite; remove or fix that point",
+                        start + k
+                    )));
+                }
+                boxed.add([p[0], p[1]]);
+            }
+            let mid = [
+                0.5 * (boxed.min[0] + boxed.max[0]),
+                0.5 * (boxed.min[1] + boxed.max[1]),
+            ];
+            let half = [
+                0.5 * (boxed.max[0] - boxed.min[0]),
+                0.5 * (boxed.max[1] - boxed.min[1]),
+            ];
+            let radius = dot(half, half).sqrt();
+            let centre = [c * mid[0] - s * mid[1] + x, s * mid[0] + c * mid[1] + y];
+            // A margin far above rounding, so the cut never drops a candidate.
+            let reach = radius + band + 1e-9 * (1.0 + radius + band + dot(centre, centre).sqrt());
+            if !segments
+                .iter()
+                .any(|seg| segment_distance(centre, seg) <= reach)
+            {
+                continue;
+            }
+            for (k, p) in block.chunks_exact(2).enumerate() {
+                let world = [c * p[0] - s * p[1] + x, s * p[0] + c * p[1] + y];
+                bounds.add(world);
+                out.extend_from_slice(&world);
+                rows.push(start + k);
+            }
+        }
+    }
+    Ok((WorldPoints { flat: out, bounds }, rows))
+}
+
+/// Distance from `p` to the segment `seg` (to its nearer end past either end).
+fn segment_distance(p: Point, seg: &Segment) -> f64 {
+    let d = sub(seg.b, seg.a);
+    let len_sq = dot(d, d);
+    let t = if len_sq > 0.0 {
+        (dot(sub(p, seg.a), d) / len_sq).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let q = [seg.a[0] + t * d[0], seg.a[1] + t * d[1]];
+    let e = sub(p, q);
+    dot(e, e).sqrt()
+}
+
+/// The shape checks shared by the scan transforms: `poses` `(N, 3)` flat and finite, `offsets`
+/// `(N + 1,)` non-decreasing from 0 to the number of points.
+fn check_layout(poses: &[f64], points: Points<'_>, offsets: &[i64]) -> Result<()> {
     let n = poses.len() / 3;
     if poses.len() % 3 != 0 {
         return Err(HitlError::Input(format!(
@@ -177,9 +294,6 @@ pub fn world_points(poses: &[f64], points: Points<'_>, offsets: &[i64]) -> Resul
             points.len()
         )));
     }
-    let mut out = vec![0.0; points.flat.len()];
-    let mut bounds = Bounds::EMPTY;
-    let mut finite = true;
     for (i, (pose, w)) in poses.chunks_exact(3).zip(offsets.windows(2)).enumerate() {
         let (x, y, theta) = (pose[0], pose[1], pose[2]);
         if !(x.is_finite() && y.is_finite() && theta.is_finite()) {
@@ -193,25 +307,8 @@ pub fn world_points(poses: &[f64], points: Points<'_>, offsets: &[i64]) -> Resul
                 w[0], w[1]
             )));
         }
-        // Both bounds lie in 0..=P: the ends are checked above and the sequence is monotone.
-        let range = 2 * w[0] as usize..2 * w[1] as usize;
-        let (Some(src), Some(dst)) = (points.flat.get(range.clone()), out.get_mut(range)) else {
-            return Err(HitlError::Input(format!(
-                "offsets of pose {i} point past the end of the points"
-            )));
-        };
-        let (s, c) = theta.sin_cos();
-        for (p, q) in src.chunks_exact(2).zip(dst.chunks_exact_mut(2)) {
-            let world = [c * p[0] - s * p[1] + x, s * p[0] + c * p[1] + y];
-            finite &= world[0].is_finite() & world[1].is_finite();
-            bounds.add(world);
-            q.copy_from_slice(&world);
-        }
     }
-    if !finite {
-        Points::new(&out)?.check_finite("point")?;
-    }
-    Ok(WorldPoints { flat: out, bounds })
+    Ok(())
 }
 
 #[inline]
