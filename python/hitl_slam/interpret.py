@@ -139,17 +139,7 @@ def _refit(
 ) -> tuple[tuple[float, float], tuple[float, float]]:
     """P = the weighted TLS line of the final S and its extent: after the pair rules S may be a
     subset of what EM fitted (one visit of several), and P must describe S."""
-    owner = sel.rows[:, 0]
-    local = map.points[map.offsets[owner] + sel.rows[:, 1]]
-    p = poses[owner]
-    c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
-    world = np.stack(
-        [
-            c * local[:, 0] - s * local[:, 1] + p[:, 0],
-            s * local[:, 0] + c * local[:, 1] + p[:, 1],
-        ],
-        axis=1,
-    )
+    world = map.observed_points(sel.rows, poses)
     _, _, extent = _core.line_fit(world, sel.weights, sel.drawn, band)
     return (
         (float(extent[0, 0]), float(extent[0, 1])),

@@ -141,6 +141,21 @@ class Map:
             raise InputError("poses contain NaN or inf; pass finite poses")
         return out
 
+    def point_rows(self, rows: NDArray[np.int64]) -> NDArray[np.int64]:
+        """The map rows (indices into :attr:`points`) of observations given as ``(K, 2)``
+        (pose, point within that pose's scan) rows, as interpretations store them."""
+        return np.asarray(self.offsets[rows[:, 0]] + rows[:, 1], dtype=np.int64)
+
+    def observed_points(
+        self, rows: NDArray[np.int64], poses: NDArray[np.float64] | None = None
+    ) -> NDArray[np.float64]:
+        """``(K, 2)`` the observations ``rows`` ((pose, point) rows) in the world frame under
+        ``poses`` (default: the map's)."""
+        owners = np.ascontiguousarray(rows[:, 0], dtype=np.int64)
+        return to_world(
+            self.poses if poses is None else poses, owners, self.points[self.point_rows(rows)]
+        )
+
     def world_points(self, poses: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """``(P, 2)`` every point in the world frame under ``poses`` (default: the map's)."""
         return to_world(self.poses if poses is None else poses, self.pose_of_point(), self.points)

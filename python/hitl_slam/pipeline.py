@@ -93,8 +93,7 @@ def fit_line(points: FloatArray) -> tuple[float, float]:
 
 def _observations(map: Map, rows: NDArray[np.int64]) -> tuple[NDArray[np.int64], FloatArray]:
     poses = np.ascontiguousarray(rows[:, 0], dtype=np.int64)
-    points = np.ascontiguousarray(map.points[map.offsets[poses] + rows[:, 1]])
-    return poses, points
+    return poses, np.ascontiguousarray(map.points[map.point_rows(rows)])
 
 
 def solve_all(

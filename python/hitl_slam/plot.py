@@ -232,7 +232,7 @@ def _subsample(count: int, limit: int) -> IntArray | None:
 
 
 def _observed(map: Map, world: FloatArray, rows: IntArray) -> FloatArray:
-    points: FloatArray = world[map.offsets[rows[:, 0]] + rows[:, 1]]
+    points: FloatArray = world[map.point_rows(rows)]
     return points
 
 

@@ -361,12 +361,11 @@ class SimulatedHuman:
         for rows in (h.s_a, h.s_b):
             if rows.shape[0] < self.config.min_points_per_pose:
                 return False
-            labels = self.scenario.wall_of_point[m.offsets[rows[:, 0]] + rows[:, 1]]
+            labels = self.scenario.wall_of_point[m.point_rows(rows)]
             inside = (labels == wall) & (rows[:, 0] >= first) & (rows[:, 0] <= last)
             if np.mean(inside) < 0.9:
                 return False
-            world = to_world(poses, rows[:, 0], m.points[m.offsets[rows[:, 0]] + rows[:, 1]])
-            fits.append(fit_points(world))
+            fits.append(fit_points(m.observed_points(rows, poses)))
         return self._same_wall(issue.a, issue.b, fits[0], fits[1]).score > 1.0
 
     def _visit_of(self, rows: IntArray, share: float = 0.9) -> Visit | None:
@@ -374,7 +373,7 @@ class SimulatedHuman:
         if rows.shape[0] < self.config.min_points_per_pose:
             return None
         m = self.scenario.map
-        labels = self.scenario.wall_of_point[m.offsets[rows[:, 0]] + rows[:, 1]]
+        labels = self.scenario.wall_of_point[m.point_rows(rows)]
         for v in self.visits:
             inside = (labels == v.wall) & (rows[:, 0] >= v.first) & (rows[:, 0] <= v.last)
             if np.mean(inside) >= share:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
@@ -60,8 +61,13 @@ class _Static:
         await self.files(scope, receive, send)
 
 
-def _error(status: int, exc: BaseException) -> JSONResponse:
-    return JSONResponse({"detail": str(exc)}, status_code=status)
+def _error_handler(status: int) -> Callable[[Request, Exception], Awaitable[Response]]:
+    """An exception handler answering ``status`` with the error's message as ``detail``."""
+
+    async def handle(_request: Request, exc: Exception) -> Response:
+        return JSONResponse({"detail": str(exc)}, status_code=status)
+
+    return handle
 
 
 def create_app(
@@ -118,25 +124,16 @@ def create_app(
         ]
         return JSONResponse({"detail": detail}, status_code=422)
 
-    @app.exception_handler(NothingToDo)
-    async def _nothing(_request: Request, exc: NothingToDo) -> JSONResponse:
-        return _error(409, exc)
-
-    @app.exception_handler(OutsideFolder)
-    async def _outside(_request: Request, exc: OutsideFolder) -> JSONResponse:
-        return _error(403, exc)
-
-    @app.exception_handler(InputError)
-    async def _bad_input(_request: Request, exc: InputError) -> JSONResponse:
-        return _error(400, exc)
-
-    @app.exception_handler(SolverError)
-    async def _solver(_request: Request, exc: SolverError) -> JSONResponse:
-        return _error(500, exc)
-
-    @app.exception_handler(HitlSlamError)
-    async def _other(_request: Request, exc: HitlSlamError) -> JSONResponse:
-        return _error(500, exc)
+    # Starlette picks the handler of the most specific class, so the subclasses come first
+    # only for the reader: NothingToDo and OutsideFolder are InputErrors with their own status.
+    for error, status in (
+        (NothingToDo, 409),
+        (OutsideFolder, 403),
+        (InputError, 400),
+        (SolverError, 500),
+        (HitlSlamError, 500),
+    ):
+        app.add_exception_handler(error, _error_handler(status))
 
     @app.get("/", response_model=None)
     def index() -> Response:

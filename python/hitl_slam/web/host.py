@@ -246,8 +246,8 @@ class SessionHost:
         snap = self.snapshot
         out = []
         for index, h in self._active_with_index(snap):
-            a = self._world(snap.poses, h.s_a)
-            b = self._world(snap.poses, h.s_b)
+            a = self._map.observed_points(h.s_a, snap.poses)
+            b = self._map.observed_points(h.s_b, snap.poses)
             phi_a, rho_a = fit_line(a)
             phi_b, _ = fit_line(b)
             # Lines have no direction: fold the angle between normals into [0, 90] degrees.
@@ -626,13 +626,8 @@ class SessionHost:
             if e.status.value == "applied" and e.interpretation is not None
         ]
 
-    def _world(self, poses: NDArray[np.float64], rows: NDArray[np.int64]) -> NDArray[np.float64]:
-        owners = np.ascontiguousarray(rows[:, 0], dtype=np.int64)
-        points = self._map.points[self._map.offsets[owners] + rows[:, 1]]
-        return to_world(poses, owners, points)
-
     def _global(self, rows: NDArray[np.int64]) -> str:
-        index = self._map.offsets[rows[:, 0]] + rows[:, 1]
+        index = self._map.point_rows(rows)
         return base64.b64encode(index.astype("<u4").tobytes()).decode("ascii")
 
     def _preview(self, h: Interpretation) -> dict[str, Any]:
