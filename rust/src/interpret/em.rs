@@ -329,16 +329,22 @@ pub fn em_fit(
     })
 }
 
+/// Fails, before any work, on unusable parameters or a degenerate segment.
+fn check_inputs(segments: &[Segment], params: &EmParams) -> Result<()> {
+    params.validate()?;
+    for seg in segments {
+        SegmentFrame::new(seg)?;
+    }
+    Ok(())
+}
+
 /// EM for several segments over the same points, with one grid (cell = band) for all.
 pub fn em_fit_segments(
     points: Points<'_>,
     segments: &[Segment],
     params: &EmParams,
 ) -> Result<Vec<EmFit>> {
-    params.validate()?;
-    for seg in segments {
-        SegmentFrame::new(seg)?;
-    }
+    check_inputs(segments, params)?;
     let grid = GridIndex::build(points, params.band)?;
     segments
         .iter()
@@ -358,10 +364,7 @@ pub fn em_fit_scans(
     segments: &[Segment],
     params: &EmParams,
 ) -> Result<Vec<EmFit>> {
-    params.validate()?;
-    for seg in segments {
-        SegmentFrame::new(seg)?;
-    }
+    check_inputs(segments, params)?;
     let (world, rows) = world_points_near(poses, points, offsets, segments, params.band)?;
     let world_pts = Points::new(&world.flat)?;
     let grid = GridIndex::build_in(world_pts, params.band, world.bounds)?;

@@ -155,32 +155,7 @@ pub struct WorldPoints {
 /// `poses` is `(N, 3)` flat (x, y, theta), `points` `(P, 2)` robot-frame points pose by pose,
 /// and pose i owns rows `offsets[i]..offsets[i + 1]`.
 pub fn world_points(poses: &[f64], points: Points<'_>, offsets: &[i64]) -> Result<WorldPoints> {
-    check_layout(poses, points, offsets)?;
-    let mut out = vec![0.0; points.flat.len()];
-    let mut bounds = Bounds::EMPTY;
-    let mut finite = true;
-    for (i, (pose, w)) in poses.chunks_exact(3).zip(offsets.windows(2)).enumerate() {
-        let (x, y, theta) = (pose[0], pose[1], pose[2]);
-        // Both bounds lie in 0..=P: check_layout checked the ends and that the sequence is
-        // monotone.
-        let range = 2 * w[0] as usize..2 * w[1] as usize;
-        let (Some(src), Some(dst)) = (points.flat.get(range.clone()), out.get_mut(range)) else {
-            return Err(HitlError::Input(format!(
-                "offsets of pose {i} point past the end of the points"
-            )));
-        };
-        let (s, c) = theta.sin_cos();
-        for (p, q) in src.chunks_exact(2).zip(dst.chunks_exact_mut(2)) {
-            let world = [c * p[0] - s * p[1] + x, s * p[0] + c * p[1] + y];
-            finite &= world[0].is_finite() & world[1].is_finite();
-            bounds.add(world);
-            q.copy_from_slice(&world);
-        }
-    }
-    if !finite {
-        Points::new(&out)?.check_finite("point")?;
-    }
-    Ok(WorldPoints { flat: out, bounds })
+    Ok(world_points_where(poses, points, offsets, |_, _| true)?.0)
 }
 
 /// Consecutive points of a scan tested together by [`world_points_near`]: neighbouring beams
@@ -201,12 +176,30 @@ pub fn world_points_near(
     segments: &[Segment],
     band: f64,
 ) -> Result<(WorldPoints, Vec<usize>)> {
+    world_points_where(poses, points, offsets, |centre, radius| {
+        // A margin far above rounding, so the cut never drops a candidate.
+        let reach = radius + band + 1e-9 * (1.0 + radius + band + dot(centre, centre).sqrt());
+        segments
+            .iter()
+            .any(|seg| segment_distance(centre, seg) <= reach)
+    })
+}
+
+/// The world points of the blocks of [`NEAR_BLOCK`] scan points for which `keep(world centre,
+/// radius)` of the block's bounding circle holds, with their map rows and bounds.
+fn world_points_where(
+    poses: &[f64],
+    points: Points<'_>,
+    offsets: &[i64],
+    keep: impl Fn(Point, f64) -> bool,
+) -> Result<(WorldPoints, Vec<usize>)> {
     check_layout(poses, points, offsets)?;
     let mut out = Vec::new();
     let mut rows = Vec::new();
     let mut bounds = Bounds::EMPTY;
     for (i, (pose, w)) in poses.chunks_exact(3).zip(offsets.windows(2)).enumerate() {
         let (x, y, theta) = (pose[0], pose[1], pose[2]);
+        // Both bounds lie in 0..=P: check_layout checked the ends and that they never decrease.
         let first = w[0] as usize;
         let Some(src) = points.flat.get(2 * first..2 * w[1] as usize) else {
             return Err(HitlError::Input(format!(
@@ -234,14 +227,8 @@ pub fn world_points_near(
                 0.5 * (boxed.max[0] - boxed.min[0]),
                 0.5 * (boxed.max[1] - boxed.min[1]),
             ];
-            let radius = dot(half, half).sqrt();
             let centre = [c * mid[0] - s * mid[1] + x, s * mid[0] + c * mid[1] + y];
-            // A margin far above rounding, so the cut never drops a candidate.
-            let reach = radius + band + 1e-9 * (1.0 + radius + band + dot(centre, centre).sqrt());
-            if !segments
-                .iter()
-                .any(|seg| segment_distance(centre, seg) <= reach)
-            {
+            if !keep(centre, dot(half, half).sqrt()) {
                 continue;
             }
             for (k, p) in block.chunks_exact(2).enumerate() {
