@@ -598,21 +598,7 @@ impl SparsityPattern {
             *x = -g;
         }
         let n = self.n;
-        let sym = SymbolicSparseColMatRef::new_checked(n, n, &self.col_ptr, None, &self.row_idx);
-        let a = SparseColMatRef::new(sym, &self.damped);
-        if self
-            .symbolic
-            .factorize_numeric_llt::<f64>(
-                &mut self.l_values,
-                a,
-                Side::Upper,
-                LltRegularization::default(),
-                Par::Seq,
-                MemStack::new(&mut self.mem),
-                Spec::default(),
-            )
-            .is_err()
-        {
+        if !self.factorize(true) {
             return Ok(false);
         }
         let llt = LltRef::new(&self.symbolic, &self.l_values);
@@ -633,6 +619,25 @@ impl SparsityPattern {
             self.wide.solve_refined(l, a_times, delta);
         }
         Ok(delta.iter().all(|v| v.is_finite()))
+    }
+
+    /// Numeric Cholesky of the damped (`damped`) or the undamped sparse part into `l_values`,
+    /// on the cached symbolic analysis; false when it is not positive definite.
+    fn factorize(&mut self, damped: bool) -> bool {
+        let n = self.n;
+        let sym = SymbolicSparseColMatRef::new_checked(n, n, &self.col_ptr, None, &self.row_idx);
+        let values = if damped { &self.damped } else { &self.h };
+        self.symbolic
+            .factorize_numeric_llt::<f64>(
+                &mut self.l_values,
+                SparseColMatRef::new(sym, values),
+                Side::Upper,
+                LltRegularization::default(),
+                Par::Seq,
+                MemStack::new(&mut self.mem),
+                Spec::default(),
+            )
+            .is_ok()
     }
 
     /// `d^T D d` for the damping matrix D of [`Self::solve_damped`].
@@ -661,19 +666,9 @@ impl SparsityPattern {
                 "the information matrix is singular at this solution; marginals are undefined (is every pose constrained?)".into(),
             )
         };
-        let sym = SymbolicSparseColMatRef::new_checked(n, n, &self.col_ptr, None, &self.row_idx);
-        let a = SparseColMatRef::new(sym, &self.h);
-        self.symbolic
-            .factorize_numeric_llt::<f64>(
-                &mut self.l_values,
-                a,
-                Side::Upper,
-                LltRegularization::default(),
-                Par::Seq,
-                MemStack::new(&mut self.mem),
-                Spec::default(),
-            )
-            .map_err(|_| singular())?;
+        if !self.factorize(false) {
+            return Err(singular());
+        }
         if self.wide.rank() == 0 {
             let llt = LltRef::new(&self.symbolic, &self.l_values);
             // The workspace was sized for 3 right-hand sides; solve in chunks of 3.
