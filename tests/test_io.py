@@ -21,10 +21,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
+from hitl_slam.cli import main
 from hitl_slam.errors import InputError
 from hitl_slam.graph import PoseGraph
 from hitl_slam.io import GraphFormat, load_graph, load_graph_with_report, save_graph
 from hitl_slam.io.atomic import atomic_write_text, atomic_writer
+from hitl_slam.io.textfile import MAX_ANGLE, MAX_COORDINATE, MAX_INFORMATION
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 POSE_GRAPHS = SHARED / "datasets" / "pose_graphs"
@@ -393,6 +395,150 @@ def test_information_error_counts_the_other_bad_edges(tmp_path: Path) -> None:
     text = SQUARE_G2O.replace(IDENTITY6, "1 0 0 1 0 -1")
     path = write(tmp_path, "p.g2o", text)
     assert_error(error_message(path), path, 6, "and so is that of 3 more edges (lines 7, 8, 9)")
+
+
+# Finite but unusable values: too large to solve with, refused at load like NaN/inf.
+
+FORMATS = {".g2o": (SQUARE_G2O, GraphFormat.G2O), ".graph": (SQUARE_TORO, GraphFormat.TORO)}
+Field = str | tuple[int, int]  # a pose/measurement field name, or (row, col) of the information
+
+
+def bad_line(fmt: GraphFormat, kind: str, field: Field, value: str) -> tuple[str, str, int]:
+    """A vertex (id 4) or edge (0 -> 2) line with one field set to ``value``, identity elsewhere;
+    also the field's name in this format and its field number (the tag is field 0)."""
+    syntax = fmt.syntax
+    if kind == "vertex":
+        tag, ids, names, values = syntax.vertex_tag, ["4"], ["x", "y", "theta"], ["1", "1", "0"]
+    else:
+        tag, ids, names = syntax.edge_tag, ["0", "2"], list(syntax.edge_fields)
+        values = ["1", "1", "0", *("1" if r == c else "0" for r, c in syntax.info_index)]
+    name = syntax.info_fields[syntax.info_index.index(field)] if isinstance(field, tuple) else field
+    k = names.index(name)
+    values[k] = value
+    return " ".join([tag, *ids, *values]), name, 1 + len(ids) + k
+
+
+OUT_OF_RANGE: list[tuple[str, Field, str, str]] = [
+    ("edge", (0, 0), "1e308", "an information entry beyond +/-1e30"),
+    ("edge", (1, 1), "1e31", "an information entry beyond +/-1e30"),
+    ("edge", (2, 2), "-1e308", "an information entry beyond +/-1e30"),
+    ("edge", (0, 2), "1e31", "an information entry beyond +/-1e30"),
+    ("edge", "dx", "1e308", "a coordinate beyond +/-1e9 m"),
+    ("edge", "dy", "-1e10", "a coordinate beyond +/-1e9 m"),
+    ("edge", "dtheta", "1e7", "an angle beyond +/-1e6 rad"),
+    ("vertex", "x", "1e308", "a coordinate beyond +/-1e9 m"),
+    ("vertex", "y", "-1e308", "a coordinate beyond +/-1e9 m"),
+    ("vertex", "theta", "-1e7", "an angle beyond +/-1e6 rad"),
+]
+NON_FINITE: list[tuple[str, Field, str, str]] = [
+    ("edge", (0, 0), "nan", "NaN/inf"),
+    ("edge", (1, 2), "inf", "NaN/inf"),
+    ("edge", "dy", "1e999", "NaN/inf"),
+    ("edge", "dtheta", "-inf", "NaN/inf"),
+    ("vertex", "x", "NaN", "NaN/inf"),
+    ("vertex", "theta", "inf", "NaN/inf"),
+    ("vertex", "y", "-inf", "NaN/inf"),
+]
+
+
+@pytest.mark.parametrize("suffix", list(FORMATS))
+@pytest.mark.parametrize(("kind", "field", "value", "phrase"), OUT_OF_RANGE + NON_FINITE)
+def test_unusable_value_names_file_line_and_field(
+    tmp_path: Path, suffix: str, kind: str, field: Field, value: str, phrase: str
+) -> None:
+    base, fmt = FORMATS[suffix]
+    line, name, number = bad_line(fmt, kind, field, value)
+    tag = line.split()[0]
+    # Line 6, with edges after it: the error is the bad line's, not the file's last.
+    path = write(tmp_path, f"big{suffix}", with_line(base, line, at=5))
+    message = error_message(path)
+    assert_error(message, path, 6, f"{name} is {value!r} (field {number} of {tag})", phrase)
+    assert message.count("\n") == 0
+
+
+@pytest.mark.parametrize("suffix", list(FORMATS))
+def test_information_advice_says_what_to_write_instead(tmp_path: Path, suffix: str) -> None:
+    base, fmt = FORMATS[suffix]
+    line = bad_line(fmt, "edge", (0, 0), "1e308")[0]
+    message = error_message(write(tmp_path, f"big{suffix}", with_line(base, line, at=5)))
+    assert "such as 1e12" in message
+    # Only g2o has FIX lines to hold a vertex still.
+    assert ("FIX line" in message) is (fmt is GraphFormat.G2O)
+
+
+@pytest.mark.parametrize("suffix", list(FORMATS))
+def test_the_first_unusable_value_of_a_line_is_named(tmp_path: Path, suffix: str) -> None:
+    _, fmt = FORMATS[suffix]
+    syntax = fmt.syntax
+    text = f"{syntax.vertex_tag} 0 0 0 0\n{syntax.vertex_tag} 1 1e308 0 1e7\n"
+    path = write(tmp_path, f"two{suffix}", text)
+    assert_error(error_message(path), path, 2, "x is '1e308' (field 2 of", "coordinate")
+
+
+def test_limits_are_the_documented_values() -> None:
+    assert (MAX_INFORMATION, MAX_COORDINATE, MAX_ANGLE) == (1e30, 1e9, 1e6)
+
+
+@pytest.mark.parametrize("suffix", list(FORMATS))
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_values_at_the_limits_are_accepted(tmp_path: Path, suffix: str, sign: float) -> None:
+    _, fmt = FORMATS[suffix]
+    syntax = fmt.syntax
+    c, a, i = sign * MAX_COORDINATE, sign * MAX_ANGLE, MAX_INFORMATION
+    info = " ".join(repr(i) if r == col else "0" for r, col in syntax.info_index)
+    text = (
+        f"{syntax.vertex_tag} 0 0 0 0\n"
+        f"{syntax.vertex_tag} 1 {c!r} {-c!r} {a!r}\n"
+        f"{syntax.edge_tag} 0 1 {c!r} {-c!r} {-a!r} {info}\n"
+    )
+    graph = load_graph(write(tmp_path, f"edge{suffix}", text))
+    assert graph.poses[1, :2].tolist() == [c, -c]
+    assert graph.measurements[0, :2].tolist() == [c, -c]
+    assert graph.information[0].tolist() == (i * np.eye(3)).tolist()
+    assert np.isfinite(graph.poses).all()
+    assert np.isfinite(graph.measurements).all()
+
+
+@pytest.mark.parametrize("suffix", list(FORMATS))
+@pytest.mark.parametrize(
+    ("kind", "field", "value"),
+    [("edge", (0, 0), "1e308"), ("edge", "dx", "1e308"), ("vertex", "x", "1e308")],
+)
+def test_cli_refuses_an_unusable_value_and_writes_nothing(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    suffix: str,
+    kind: str,
+    field: Field,
+    value: str,
+) -> None:
+    base, fmt = FORMATS[suffix]
+    bad = write(tmp_path, f"bad{suffix}", with_line(base, bad_line(fmt, kind, field, value)[0], 5))
+    out = tmp_path / f"out{suffix}"
+    assert main(["solve", str(bad), "-o", str(out)]) == 2
+    captured = capsys.readouterr()
+    assert captured.err.count("\n") == 1
+    assert captured.err.startswith(f"hitl-slam: error: {bad}:6: ")
+    assert captured.out == ""
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [bad.name]
+
+
+@pytest.mark.parametrize("suffix", list(FORMATS))
+def test_cli_leaves_an_existing_output_byte_for_byte(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], suffix: str
+) -> None:
+    base, fmt = FORMATS[suffix]
+    bad = write(
+        tmp_path, f"bad{suffix}", with_line(base, bad_line(fmt, "edge", (1, 1), "1e308")[0])
+    )
+    out = tmp_path / f"out{suffix}"
+    before = SQUARE_G2O.replace("\n", "\r\n").encode() if suffix == ".g2o" else b"\x00old\xff"
+    out.write_bytes(before)
+    assert main(["solve", str(bad), "-o", str(out)]) == 2
+    assert f"{bad}:10: " in capsys.readouterr().err
+    assert out.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([bad.name, out.name])
 
 
 @pytest.mark.parametrize("text", ["", "\n\n", "# only a comment\n   \n#another\n"])

@@ -60,14 +60,20 @@ class IterationRecord:
 
 @final
 class SolveReport:
-    """What a solve did. ``termination`` is one of ``relative_decrease``, ``absolute_decrease``,
-    ``error_tolerance``, ``gradient``, ``step_size`` (converged) or ``lambda_limit``,
-    ``max_iterations`` (not converged)."""
+    """What a solve did. ``termination`` is ``function_tolerance``, ``gradient_tolerance`` or
+    ``step_tolerance`` (converged; ``termination_detail`` names the test and its numbers), or
+    ``max_iterations``, ``stalled``, ``non_finite`` (not converged). ``*_cost`` is the objective
+    (chi2, or the robust cost with kernels), ``*_chi2`` plain chi2; ``weights`` is each factor's
+    robust weight at the solution (1 without a kernel)."""
 
     @property
     def iterations(self) -> int: ...
     @property
     def linear_solves(self) -> int: ...
+    @property
+    def initial_cost(self) -> float: ...
+    @property
+    def final_cost(self) -> float: ...
     @property
     def initial_chi2(self) -> float: ...
     @property
@@ -75,7 +81,11 @@ class SolveReport:
     @property
     def termination(self) -> str: ...
     @property
+    def termination_detail(self) -> str: ...
+    @property
     def converged(self) -> bool: ...
+    @property
+    def weights(self) -> NDArray[np.float64]: ...
     @property
     def time_s(self) -> float: ...
     @property
@@ -136,6 +146,7 @@ class Graph:
         relative_tolerance: float = 1e-6,
         absolute_tolerance: float = 1e-6,
         lambda_initial: float = 1e-5,
+        robust: list[tuple[str, str]] | None = None,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], SolveReport]: ...
     def add_between(
         self, i: int, j: int, measurement: NDArray[np.float64], information: NDArray[np.float64]
@@ -158,6 +169,10 @@ class Graph:
         lambda_initial: float = 1e-5,
         lambda_max: float = 1e16,
         diagonal_damping: bool = False,
+        watchdog_steps: int = 3,
+        trust_radius_initial: float = 0.0,
+        robust: list[tuple[str, str]] | None = None,
+        init: str = "given",
     ) -> tuple[NDArray[np.float64], SolveReport]: ...
     def marginals(
         self, poses: NDArray[np.float64], indices: NDArray[np.int64]

@@ -7,6 +7,7 @@ with the GIL released. Each graph keeps its symbolic analysis between solves.
 from __future__ import annotations
 
 import enum
+from collections.abc import Mapping
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -15,7 +16,24 @@ from hitl_slam._core import SolveReport
 from hitl_slam.errors import InputError
 from hitl_slam.graph import PoseGraph
 
-__all__ = ["Method", "chi2", "marginals", "optimize"]
+__all__ = [
+    "EDGE_CLASSES",
+    "Init",
+    "Method",
+    "RobustSpec",
+    "chi2",
+    "downweighted",
+    "marginals",
+    "optimize",
+    "robust_pairs",
+]
+
+EDGE_CLASSES = ("odometry", "loop", "human", "prior")
+"""Edge classes a robust kernel can be chosen for: ``odometry`` (consecutive poses, |i - j| = 1),
+``loop`` (any other relative pose), ``human`` (correction factors), ``prior``."""
+
+RobustSpec = str | Mapping[str, str] | None
+"""``"dcs:1"`` (on loop closures), ``{"loop": "dcs:1", "odometry": "huber:2"}``, or None."""
 
 
 class Method(enum.Enum):
@@ -23,6 +41,23 @@ class Method(enum.Enum):
 
     LEVENBERG_MARQUARDT = "lm"
     GAUSS_NEWTON = "gn"
+    DOGLEG = "dogleg"
+
+
+class Init(enum.Enum):
+    """Where the solve starts.
+
+    ``given``: the graph's own poses (right for human corrections: the current map is the best
+    guess there, and for files whose vertices come from a SLAM front end). ``tree``: measurements
+    composed along a spanning tree from the anchor, odometry first (g2o's and TORO's guess):
+    cheap, exact on trees, drifts with the odometry. ``chordal``: rotations first by chordal
+    relaxation, then positions, both linear (Carlone et al. 2015; GTSAM's LAGO): the choice when
+    the given poses are unknown or wildly off (headings wrong by radians).
+    """
+
+    GIVEN = "given"
+    TREE = "tree"
+    CHORDAL = "chordal"
 
 
 def _method(method: Method | str) -> Method:
@@ -33,6 +68,57 @@ def _method(method: Method | str) -> Method:
     except ValueError:
         choices = ", ".join(repr(m.value) for m in Method)
         raise InputError(f"unknown method {method!r}; use one of {choices}") from None
+
+
+def _init(init: Init | str) -> Init:
+    if isinstance(init, Init):
+        return init
+    try:
+        return Init(init)
+    except ValueError:
+        choices = ", ".join(repr(m.value) for m in Init)
+        raise InputError(f"unknown init {init!r}; use one of {choices}") from None
+
+
+def robust_pairs(robust: RobustSpec) -> list[tuple[str, str]]:
+    """``(edge class, kernel)`` pairs from a robust specification (see :data:`RobustSpec`).
+
+    A bare kernel applies to loop closures; ``"odometry=huber:2"`` names the class in a string.
+    Kernels: ``huber[:k]`` (default k 1.345), ``cauchy[:k]`` (2.3849), ``dcs[:phi]`` (1), with k in
+    sigmas of the whitened residual and phi in chi2 units, as GTSAM's ``noiseModel.mEstimator``.
+    """
+    if robust is None:
+        return []
+    if isinstance(robust, str):
+        items: list[tuple[str, str]] = []
+        for part in robust.split(","):
+            part = part.strip()
+            if not part:
+                continue
+            cls, sep, kernel = part.partition("=")
+            items.append((cls.strip(), kernel.strip()) if sep else ("loop", cls.strip()))
+        pairs = items
+    elif isinstance(robust, Mapping):
+        pairs = [(str(k), str(v)) for k, v in robust.items()]
+    else:
+        raise InputError(
+            f"robust must be a string such as 'dcs:1' or a mapping such as "
+            f"{{'loop': 'dcs:1'}}, got {type(robust).__name__}"
+        )
+    for cls, _ in pairs:
+        if cls not in EDGE_CLASSES:
+            raise InputError(
+                f"unknown edge class {cls!r} for a robust kernel; use one of "
+                f"{', '.join(EDGE_CLASSES)}"
+            )
+    return pairs
+
+
+def downweighted(report: SolveReport, threshold: float = 0.5) -> NDArray[np.int64]:
+    """Indices of the factors (for a :class:`PoseGraph`, its edges) whose robust weight at the
+    solution is below ``threshold``: the measurements the solve treated as outliers."""
+    weights = np.asarray(report.weights)
+    return np.flatnonzero(weights < threshold).astype(np.int64)
 
 
 def _poses(graph: PoseGraph, poses: ArrayLike | None) -> NDArray[np.float64]:
@@ -51,29 +137,47 @@ def optimize(
     graph: PoseGraph,
     *,
     initial: ArrayLike | None = None,
+    init: Init | str = Init.GIVEN,
     method: Method | str = Method.LEVENBERG_MARQUARDT,
+    robust: RobustSpec = None,
     max_iterations: int = 100,
     relative_tolerance: float = 1e-6,
     absolute_tolerance: float = 1e-6,
     error_tolerance: float = 0.0,
+    gradient_tolerance: float = 1e-12,
+    step_tolerance: float = 1e-12,
     lambda_initial: float = 1e-5,
     diagonal_damping: bool = False,
+    watchdog_steps: int = 3,
 ) -> tuple[NDArray[np.float64], SolveReport]:
-    """Minimize chi2 = sum of r^T Omega r over all edges, with ``graph.anchor`` held fixed.
+    """Minimize chi2 = sum of r^T Omega r over all edges (or its robust version), with
+    ``graph.anchor`` held fixed.
 
     Args:
         graph: the pose graph; ``graph.poses`` is the initial guess unless ``initial`` is given.
         initial: optional ``(N, 3)`` initial guess.
-        method: ``"lm"`` (Levenberg-Marquardt, default) or ``"gn"`` (Gauss-Newton).
+        init: ``"given"`` (default: start from the poses as they are), ``"tree"`` or
+            ``"chordal"`` (compute a start from the measurements; see :class:`Init`).
+        method: ``"lm"`` (Levenberg-Marquardt, default), ``"gn"`` (Gauss-Newton) or
+            ``"dogleg"`` (Powell's dogleg).
+        robust: robust kernels per edge class, e.g. ``"dcs:1"`` (loop closures) or
+            ``{"loop": "cauchy", "odometry": "huber:3"}`` (see :func:`robust_pairs`).
         max_iterations: budget of accepted steps.
-        relative_tolerance, absolute_tolerance: stop when chi2 decreases by less than this
-            fraction / amount between accepted steps (GTSAM's test, on chi2 = 2 x GTSAM's error).
-        error_tolerance: stop when chi2 falls below this.
+        relative_tolerance, absolute_tolerance: function tolerance: stop when an undamped step
+            lowers the cost by less than this fraction / amount (GTSAM's test, on chi2 = 2 x
+            GTSAM's error).
+        error_tolerance: stop when the cost falls below this.
+        gradient_tolerance, step_tolerance: the gradient and step tests.
         lambda_initial: initial LM damping; ``diagonal_damping`` scales it by diag(J^T J).
+        watchdog_steps: Gauss-Newton steps LM and dogleg may look ahead from a rejected step
+            (0 turns the watchdog off).
 
     Returns:
-        The optimized ``(N, 3)`` poses (theta in (-pi, pi]) and a :class:`SolveReport`
-        (iterations, initial and final chi2, termination reason, times, per-step history).
+        The optimized ``(N, 3)`` poses (theta in (-pi, pi]) and a :class:`SolveReport`:
+        iterations, initial and final cost and chi2, ``termination`` (``function_tolerance``,
+        ``gradient_tolerance``, ``step_tolerance`` when converged; ``max_iterations``,
+        ``stalled`` or ``non_finite`` otherwise) with ``termination_detail``, per-edge robust
+        ``weights``, times and the per-step history.
 
     Raises:
         InputError: bad arguments or a graph that cannot be solved as given.
@@ -81,16 +185,23 @@ def optimize(
     """
     if max_iterations < 0:
         raise InputError(f"max_iterations must be >= 0, got {max_iterations}")
+    if watchdog_steps < 0:
+        raise InputError(f"watchdog_steps must be >= 0, got {watchdog_steps}")
     start = _poses(graph, initial)
     return graph.engine().optimize(
         start,
         method=_method(method).value,
+        init=_init(init).value,
+        robust=robust_pairs(robust),
         max_iterations=max_iterations,
         relative_tolerance=relative_tolerance,
         absolute_tolerance=absolute_tolerance,
         error_tolerance=error_tolerance,
+        gradient_tolerance=gradient_tolerance,
+        step_tolerance=step_tolerance,
         lambda_initial=lambda_initial,
         diagonal_damping=diagonal_damping,
+        watchdog_steps=watchdog_steps,
     )
 
 

@@ -3,6 +3,7 @@
 
 use crate::error::{input, HitlError, Result};
 use crate::factors::{BetweenFactor, Factor, PriorFactor};
+use crate::init::{initialize, InitMethod};
 use crate::se2::Pose2;
 use crate::solver::SparsityPattern;
 use crate::values::{Key, Values};
@@ -187,6 +188,31 @@ impl FactorGraph {
             ));
         }
         Ok(())
+    }
+
+    /// An initial guess for the poses from the graph's relative-pose edges (`init`), starting
+    /// from `poses` (the anchor keeps its pose there; `Given` returns `poses`).
+    pub fn initial_guess(&self, method: InitMethod, poses: &[Pose2]) -> Result<Vec<Pose2>> {
+        if poses.len() != self.num_poses {
+            return input(format!(
+                "expected {} poses, got {}",
+                self.num_poses,
+                poses.len()
+            ));
+        }
+        let mut edges = Vec::new();
+        let mut measurements = Vec::new();
+        let mut information = Vec::new();
+        for f in self.factors.iter().filter_map(|f| f.as_between()) {
+            edges.push(f.indices());
+            measurements.push(f.measured());
+            information.push(f.information());
+        }
+        let anchor = match self.fixed.first() {
+            Some(Key::Pose(a)) => *a,
+            _ => 0,
+        };
+        initialize(method, poses, &edges, &measurements, &information, anchor)
     }
 
     /// Every variable must be connected to a fixed variable or a prior; otherwise the problem

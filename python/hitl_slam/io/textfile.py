@@ -22,6 +22,9 @@ from hitl_slam.errors import InputError
 
 __all__ = [
     "COMPRESSED_SUFFIXES",
+    "MAX_ANGLE",
+    "MAX_COORDINATE",
+    "MAX_INFORMATION",
     "PathLike",
     "RawGraph",
     "Syntax",
@@ -43,6 +46,72 @@ _STRICT_FLOAT = re.compile(
     r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan|inf|infinity)", re.ASCII | re.IGNORECASE
 )
 _FIX_LINE = "fix the line or delete it"
+
+# Largest magnitudes the readers accept. A finite value can still be unusable: the solver squares
+# residuals weighted by the information (chi2 = r^T Omega r, Hessian J^T Omega J), so a weight near
+# float64's 1.8e308 overflows to inf on the first iteration and the solve "converges" at once.
+# Values past these limits are unit mistakes or damaged files, never real data, and are refused at
+# load with file and line.
+
+MAX_INFORMATION = 1e30
+"""Largest |entry| of an information matrix (inverse covariance). Its square root, 1e15, is the
+largest whitening factor: whitened residuals and the Hessian stay inside float64's range for any
+residual within :data:`MAX_COORDINATE`. It is a range limit, not a conditioning one: weights far
+apart (1e30 next to 1) still leave the linear system with no usable precision, so an edge meant
+to be exact is better written with a large but sane value such as 1e12, or a vertex held still
+with a g2o ``FIX`` line."""
+
+MAX_COORDINATE = 1e9
+"""Largest |x|, |y| of a vertex pose or |dx|, |dy| of a measurement, in metres. 1e9 m is 2.6 times
+the distance to the Moon, so anything larger is a unit mistake or corruption; within it float64
+holds a position to better than a micrometre (the spacing of doubles near 1e9 is 1.2e-7), and
+squared residuals (about 1e19) weighted by :data:`MAX_INFORMATION` stay far from overflow."""
+
+MAX_ANGLE = 1e6
+"""Largest |theta| of a vertex pose or |dtheta| of a measurement, in radians (160,000 turns).
+Angles are wrapped to (-pi, pi] at load, but a double keeps only its absolute spacing through
+the wrap (1.2e-10 rad near 1e6, 2 rad near 1e16, where cos and sin mean nothing); an
+angle this large is in the wrong unit or damaged, not a heading."""
+
+
+@dataclass(frozen=True)
+class _Limit:
+    """The largest magnitude a field may have, and the message parts for one that exceeds it."""
+
+    bound: float
+    what: str
+    todo: str
+
+
+def _sci(value: float) -> str:
+    mantissa, exponent = f"{value:.0e}".split("e")  # 1e9, not Python's 1e+09
+    return f"{mantissa}e{int(exponent)}"
+
+
+_COORDINATE_LIMIT = _Limit(
+    MAX_COORDINATE,
+    f"a coordinate beyond +/-{_sci(MAX_COORDINATE)} m, larger than any map (a unit mistake or a "
+    "damaged file)",
+    "write positions and translations in metres, or fix the line",
+)
+_ANGLE_LIMIT = _Limit(
+    MAX_ANGLE,
+    f"an angle beyond +/-{_sci(MAX_ANGLE)} rad (160,000 turns): a unit mistake or a damaged "
+    "file, not a heading",
+    "write angles in radians, preferably within (-pi, pi], or fix the line",
+)
+_POSE_LIMITS = (_COORDINATE_LIMIT, _COORDINATE_LIMIT, _ANGLE_LIMIT)
+
+
+def _information_limit(syntax: Syntax) -> _Limit:
+    fix = ", or hold a vertex still with a FIX line" if "FIX" in syntax.extra_tags else ""
+    return _Limit(
+        MAX_INFORMATION,
+        f"an information entry beyond +/-{_sci(MAX_INFORMATION)}, too large for the solver to "
+        "weight squared residuals with in float64 (they overflow to inf)",
+        "for an edge meant to be exact write a large but sane weight such as 1e12 (information "
+        f"is the inverse covariance){fix}",
+    )
 
 
 def input_error(path: str, line: int | None, what: str, todo: str) -> InputError:
@@ -116,7 +185,13 @@ def parse_int(path: str, line: int, token: str, name: str) -> int:
 
 
 def _parse_floats(
-    path: str, line: int, tokens: Sequence[str], names: Sequence[str], tag: str, strict: bool
+    path: str,
+    line: int,
+    tokens: Sequence[str],
+    names: Sequence[str],
+    tag: str,
+    strict: bool,
+    limits: Sequence[_Limit],
 ) -> list[float]:
     # The values are the last len(names) tokens; messages number fields with the tag as field 0.
     offset = len(tokens) - len(names)
@@ -144,6 +219,14 @@ def _parse_floats(
             "or a number too large for float64",
             "replace it with a finite number or delete the line",
         )
+    for k, (value, limit) in enumerate(zip(values, limits, strict=True)):
+        if not -limit.bound <= value <= limit.bound:
+            raise input_error(
+                path,
+                line,
+                f"{names[k]} is {tokens[offset + k]!r} (field {offset + k} of {tag}): {limit.what}",
+                limit.todo,
+            )
     return values
 
 
@@ -207,13 +290,15 @@ def parse_tagged_lines(path: str, lines: Sequence[str], syntax: Syntax) -> RawGr
     """Parse vertex and edge lines; collect ``extra_tags`` lines; count every other tag.
 
     Blank lines and lines starting with ``#`` are ignored. Errors found on a single line (bad
-    numbers, field counts, NaN/inf, duplicate vertex ids, self-loops) are raised here.
+    numbers, field counts, NaN/inf, values beyond :data:`MAX_COORDINATE`, :data:`MAX_ANGLE` or
+    :data:`MAX_INFORMATION`, duplicate vertex ids, self-loops) are raised here.
     """
     raw = RawGraph(path)
     vertex_tag, edge_tag = syntax.vertex_tag, syntax.edge_tag
     vertex_fields = ("x", "y", "theta")
     edge_fields = syntax.edge_fields
     edge_usage = ("i", "j", *edge_fields)
+    edge_limits = (*_POSE_LIMITS, *[_information_limit(syntax)] * len(syntax.info_fields))
     first_definition: dict[int, int] = {}
     for number, line in enumerate(lines, 1):
         tokens = line.split()
@@ -240,7 +325,9 @@ def parse_tagged_lines(path: str, lines: Sequence[str], syntax: Syntax) -> RawGr
                     f"edge from vertex {i} to itself (self-loop)",
                     "an edge must join two different vertices; fix the ids or delete the line",
                 )
-            raw.edge_values.append(_parse_floats(path, number, tokens, edge_fields, tag, strict))
+            raw.edge_values.append(
+                _parse_floats(path, number, tokens, edge_fields, tag, strict, edge_limits)
+            )
             raw.edge_ids.append((i, j))
             raw.edge_lines.append(number)
         else:
@@ -255,7 +342,9 @@ def parse_tagged_lines(path: str, lines: Sequence[str], syntax: Syntax) -> RawGr
                     f"duplicate vertex id {vertex_id} (first defined at line {first})",
                     "give every vertex its own id, or delete one of the two lines",
                 )
-            raw.poses.append(_parse_floats(path, number, tokens, vertex_fields, tag, strict))
+            raw.poses.append(
+                _parse_floats(path, number, tokens, vertex_fields, tag, strict, _POSE_LIMITS)
+            )
             raw.vertex_ids.append(vertex_id)
             raw.vertex_lines.append(number)
     return raw

@@ -8,7 +8,7 @@
 //! `dLog/dd_i = [[-V^-1 R_z^T, -V^-1 S R_z^T t_b - w], [0, 0, -1]]`,
 //! where `t_b = R_i^T (t_j - t_i)`, `S = [[0, -1], [1, 0]]`, and `w = d(V^-1)/dtheta t_e`.
 
-use super::{check_keys, sqrt_information, whiten3, whiten3x3, Factor, SE2Log};
+use super::{check_keys, sqrt_information, whiten3, whiten3x3, Factor, FactorClass, SE2Log};
 use crate::error::{input, Result};
 use crate::se2::{rotate_inv, wrap_angle, Pose2};
 use crate::values::{Key, Values};
@@ -54,6 +54,18 @@ impl BetweenFactor {
         self.measured
     }
 
+    /// The information matrix `Omega = U^T U`.
+    pub fn information(&self) -> [[f64; 3]; 3] {
+        let u = &self.sqrt_info;
+        let mut o = [[0.0; 3]; 3];
+        for a in 0..3 {
+            for b in 0..3 {
+                o[a][b] = (0..3).map(|k| u[k][a] * u[k][b]).sum();
+            }
+        }
+        o
+    }
+
     pub fn indices(&self) -> (usize, usize) {
         (self.i, self.j)
     }
@@ -87,6 +99,18 @@ impl Factor for BetweenFactor {
 
     fn residual_dim(&self) -> usize {
         3
+    }
+
+    fn as_between(&self) -> Option<&BetweenFactor> {
+        Some(self)
+    }
+
+    fn class(&self) -> FactorClass {
+        if self.i.abs_diff(self.j) == 1 {
+            FactorClass::Odometry
+        } else {
+            FactorClass::LoopClosure
+        }
     }
 
     fn residual(&self, values: &Values, r: &mut [f64]) {

@@ -24,6 +24,55 @@ use crate::values::{Key, Values};
 /// joint solve has one of each).
 pub const WIDE_KEYS: usize = 8;
 
+/// What kind of evidence a factor is. Robust kernels are chosen per class (odometry can be
+/// trusted differently from loop closures or from a person's drawing).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum FactorClass {
+    /// A relative pose between consecutive poses (`|i - j| = 1`): the robot's own motion.
+    Odometry,
+    /// A relative pose between any other two poses (scan matching, place recognition).
+    LoopClosure,
+    /// A human correction's factors (point-to-line, relation).
+    Human,
+    /// A prior on one pose.
+    Prior,
+}
+
+impl FactorClass {
+    pub const ALL: [FactorClass; 4] = [
+        FactorClass::Odometry,
+        FactorClass::LoopClosure,
+        FactorClass::Human,
+        FactorClass::Prior,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            FactorClass::Odometry => "odometry",
+            FactorClass::LoopClosure => "loop",
+            FactorClass::Human => "human",
+            FactorClass::Prior => "prior",
+        }
+    }
+
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "odometry" | "odom" => Ok(FactorClass::Odometry),
+            "loop" | "loops" | "loop_closure" | "loop-closure" => Ok(FactorClass::LoopClosure),
+            "human" => Ok(FactorClass::Human),
+            "prior" => Ok(FactorClass::Prior),
+            other => input(format!(
+                "unknown edge class {other:?}; use odometry, loop, human or prior"
+            )),
+        }
+    }
+
+    /// Index into per-class tables (the order of [`FactorClass::ALL`]).
+    pub fn index(self) -> usize {
+        self as usize
+    }
+}
+
 /// One residual block. `jacobians` is filled key by key, each block row-major
 /// `residual_dim x key.dim()`, laid out in the order of `keys()`.
 pub trait Factor: Send + Sync + std::fmt::Debug {
@@ -34,6 +83,14 @@ pub trait Factor: Send + Sync + std::fmt::Debug {
         self.keys().len() > WIDE_KEYS
     }
     fn residual_dim(&self) -> usize;
+    /// What kind of evidence this factor is (robust kernels are chosen per class).
+    fn class(&self) -> FactorClass {
+        FactorClass::Human
+    }
+    /// The factor as a relative-pose edge, if it is one (initial guesses compose these).
+    fn as_between(&self) -> Option<&BetweenFactor> {
+        None
+    }
     /// Whitened residual only.
     fn residual(&self, values: &Values, r: &mut [f64]);
     /// Whitened residual and Jacobians.

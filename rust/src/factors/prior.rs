@@ -1,7 +1,7 @@
 //! Prior on one pose, as GTSAM's `PriorFactor<Pose2>`: `r = U Log(z^-1 x)`, `Omega = U^T U`.
 //! Jacobian in the chart `x (+) d = x * Exp(d)` (first order: `t + R d_t`, `theta + d_theta`): `[[V^-1 R(theta_e), w], [0, 0, 1]]`.
 
-use super::{check_keys, sqrt_information, whiten3, whiten3x3, Factor, SE2Log};
+use super::{check_keys, sqrt_information, whiten3, whiten3x3, Factor, FactorClass, SE2Log};
 use crate::error::{input, Result};
 use crate::se2::{rotate_inv, wrap_angle, Pose2};
 use crate::values::{Key, Values};
@@ -63,6 +63,10 @@ impl Factor for PriorFactor {
 
     fn residual_dim(&self) -> usize {
         3
+    }
+
+    fn class(&self) -> FactorClass {
+        FactorClass::Prior
     }
 
     fn residual(&self, values: &Values, r: &mut [f64]) {

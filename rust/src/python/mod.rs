@@ -23,11 +23,15 @@ use crate::correction::{
 };
 use crate::error::HitlError;
 use crate::factors::{
-    BetweenFactor, CentroidShare, PointsToLineFactor, PriorFactor, RelationFactor, RelationMode,
+    BetweenFactor, CentroidShare, FactorClass, PointsToLineFactor, PriorFactor, RelationFactor,
+    RelationMode,
 };
 use crate::graph::FactorGraph;
+use crate::init::InitMethod;
 use crate::se2::Pose2;
-use crate::solver::{self, IterationRecord, Method, SolveReport, SolverParams};
+use crate::solver::{
+    self, IterationRecord, Kernel, Method, RobustKernels, SolveReport, SolverParams,
+};
 use crate::values::{Key, Line2, Values};
 
 fn exception(py: Python<'_>, name: &str, msg: String) -> PyErr {
@@ -273,7 +277,8 @@ impl PyGraph {
     #[pyo3(signature = (
         poses, *, method = "lm", max_iterations = 100, relative_tolerance = 1e-6,
         absolute_tolerance = 1e-6, error_tolerance = 0.0, gradient_tolerance = 1e-12,
-        step_tolerance = 1e-12, lambda_initial = 1e-5, lambda_max = 1e16, diagonal_damping = false
+        step_tolerance = 1e-12, lambda_initial = 1e-5, lambda_max = 1e16, diagonal_damping = false,
+        watchdog_steps = 3, trust_radius_initial = 0.0, robust = None, init = "given"
     ))]
     #[allow(clippy::too_many_arguments)]
     fn optimize<'py>(
@@ -290,26 +295,43 @@ impl PyGraph {
         lambda_initial: f64,
         lambda_max: f64,
         diagonal_damping: bool,
+        watchdog_steps: usize,
+        trust_radius_initial: f64,
+        robust: Option<Vec<(String, String)>>,
+        init: &str,
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, PySolveReport)> {
-        let method = parse_method(method).map_err(|e| to_py(py, e))?;
-        let params = SolverParams {
-            method,
-            max_iterations,
-            relative_tolerance,
-            absolute_tolerance,
-            error_tolerance,
-            gradient_tolerance,
-            step_tolerance,
-            lambda_initial,
-            lambda_max,
-            diagonal_damping,
-        };
+        let params = (|| -> Result<SolverParams, HitlError> {
+            Ok(SolverParams {
+                method: Method::parse(method)?,
+                max_iterations,
+                relative_tolerance,
+                absolute_tolerance,
+                error_tolerance,
+                gradient_tolerance,
+                step_tolerance,
+                lambda_initial,
+                lambda_max,
+                diagonal_damping,
+                watchdog_steps,
+                trust_radius_initial,
+                robust: parse_robust(robust.as_deref().unwrap_or(&[]))?,
+            })
+        })()
+        .map_err(|e| to_py(py, e))?;
+        let init = InitMethod::parse(init).map_err(|e| to_py(py, e))?;
         let mut values = Values::from_poses(read_poses(&poses).map_err(|e| to_py(py, e))?);
         drop(poses);
+        if init != InitMethod::Given {
+            let graph = &self.inner;
+            let initial = py
+                .detach(|| guarded(|| graph.initial_guess(init, &values.poses)))
+                .map_err(|e| to_py(py, e))?;
+            values.poses = initial;
+        }
         let graph = &mut self.inner;
         let result = py.detach(|| guarded(|| solver::optimize(graph, &mut values, &params)));
         let report = result.map_err(|e| to_py(py, e))?;
-        Ok((poses_out(py, &values), PySolveReport::from(report)))
+        Ok((poses_out(py, &values), PySolveReport::new(py, report)))
     }
 
     /// Marginal covariances `(K, 3, 3)` of the poses `indices` at `poses` (in each pose's body
@@ -363,7 +385,7 @@ impl PyGraph {
         let (r, c, v, g, keys) = guarded(|| {
             graph.check_values(&values)?;
             let (factors, pattern) = graph.parts()?;
-            pattern.linearize(factors, &values);
+            pattern.linearize(factors, &values, &[]);
             Ok(pattern.upper_triplets_natural())
         })
         .map_err(|e| to_py(py, e))?;
@@ -477,7 +499,7 @@ impl PyGraph {
     /// is `(L, 2)` rows `(phi, rho)`.
     #[pyo3(signature = (
         poses, lines, *, method = "lm", max_iterations = 100, relative_tolerance = 1e-6,
-        absolute_tolerance = 1e-6, lambda_initial = 1e-5
+        absolute_tolerance = 1e-6, lambda_initial = 1e-5, robust = None
     ))]
     #[allow(clippy::too_many_arguments, clippy::type_complexity)]
     fn optimize_with_lines<'py>(
@@ -490,18 +512,21 @@ impl PyGraph {
         relative_tolerance: f64,
         absolute_tolerance: f64,
         lambda_initial: f64,
+        robust: Option<Vec<(String, String)>>,
     ) -> PyResult<(
         Bound<'py, PyArray2<f64>>,
         Bound<'py, PyArray2<f64>>,
         PySolveReport,
     )> {
         let method = parse_method(method).map_err(|e| to_py(py, e))?;
+        let robust = parse_robust(robust.as_deref().unwrap_or(&[])).map_err(|e| to_py(py, e))?;
         let params = SolverParams {
             method,
             max_iterations,
             relative_tolerance,
             absolute_tolerance,
             lambda_initial,
+            robust,
             ..SolverParams::default()
         };
         let l = lines.as_array();
@@ -540,7 +565,7 @@ impl PyGraph {
         Ok((
             poses_out(py, &values),
             lines_out.into_pyarray(py),
-            PySolveReport::from(report),
+            PySolveReport::new(py, report),
         ))
     }
 
@@ -599,10 +624,14 @@ impl From<&IterationRecord> for PyIterationRecord {
 pub struct PySolveReport {
     iterations: usize,
     linear_solves: usize,
+    initial_cost: f64,
+    final_cost: f64,
     initial_chi2: f64,
     final_chi2: f64,
     termination: String,
+    termination_detail: String,
     converged: bool,
+    weights: Py<PyArray1<f64>>,
     time_s: f64,
     time_symbolic_s: f64,
     time_linearize_s: f64,
@@ -613,15 +642,19 @@ pub struct PySolveReport {
     history: Vec<PyIterationRecord>,
 }
 
-impl From<SolveReport> for PySolveReport {
-    fn from(r: SolveReport) -> Self {
+impl PySolveReport {
+    fn new(py: Python<'_>, r: SolveReport) -> Self {
         Self {
             iterations: r.iterations,
             linear_solves: r.linear_solves,
+            initial_cost: r.initial_cost,
+            final_cost: r.final_cost,
             initial_chi2: r.initial_chi2,
             final_chi2: r.final_chi2,
             termination: r.termination.name().to_string(),
+            termination_detail: r.termination_detail,
             converged: r.termination.converged(),
+            weights: Array1::from_vec(r.weights).into_pyarray(py).unbind(),
             time_s: r.time,
             time_symbolic_s: r.time_symbolic,
             time_linearize_s: r.time_linearize,
@@ -645,13 +678,23 @@ impl PySolveReport {
 }
 
 fn parse_method(method: &str) -> Result<Method, HitlError> {
-    match method {
-        "lm" => Ok(Method::LevenbergMarquardt),
-        "gn" => Ok(Method::GaussNewton),
-        other => Err(input_err(format!(
-            "unknown method {other:?}; use \"lm\" or \"gn\""
-        ))),
+    Method::parse(method)
+}
+
+/// `[(class, kernel)]` pairs such as `("loop", "dcs:1")` into a kernel per factor class.
+fn parse_robust(pairs: &[(String, String)]) -> Result<RobustKernels, HitlError> {
+    let mut kernels = RobustKernels::none();
+    for (class, spec) in pairs {
+        let class = FactorClass::parse(class)?;
+        if kernels.get(class).is_some() {
+            return Err(input_err(format!(
+                "two robust kernels for the {} edges; give one per class",
+                class.name()
+            )));
+        }
+        kernels.set(class, Some(Kernel::parse(spec)?));
     }
+    Ok(kernels)
 }
 
 /// Groups `(pose, point)` rows by pose (sorted by pose, stable in point order).

@@ -23,7 +23,7 @@ pub fn marginal_covariances(
         }
     }
     let (factors, pattern) = graph.parts()?;
-    pattern.linearize(factors, values);
+    pattern.linearize(factors, values, &[]);
     let n = pattern.dim();
     let mut offsets = Vec::new();
     for &k in keys {

@@ -1,15 +1,24 @@
 //! Sparse nonlinear least squares: the normal-equation pattern with its cached symbolic
 //! Cholesky analysis (`pattern`), the low-rank term of wide factors solved by Woodbury
-//! (`woodbury`), Gauss-Newton / Levenberg-Marquardt (`levenberg_marquardt`), the report, and
-//! marginal covariances.
+//! (`woodbury`), robust kernels per factor class (`robust`), the algorithms (`gauss_newton`,
+//! `levenberg_marquardt`, `dogleg`) over a shared problem with honest convergence tests
+//! (`problem`), the entry point (`optimize`), the report, and marginal covariances.
 
+mod dogleg;
+mod gauss_newton;
 mod levenberg_marquardt;
 mod marginals;
+mod optimize;
+mod params;
 mod pattern;
+mod problem;
 mod report;
+mod robust;
 mod woodbury;
 
-pub use levenberg_marquardt::{optimize, Method, SolverParams};
 pub use marginals::marginal_covariances;
+pub use optimize::optimize;
+pub use params::{Method, SolverParams};
 pub use pattern::SparsityPattern;
 pub use report::{IterationRecord, SolveReport, Termination};
+pub use robust::{Kernel, RobustKernels};

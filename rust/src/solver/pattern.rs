@@ -23,6 +23,7 @@ use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side, Spec};
 use std::collections::HashMap;
 
+use super::robust::{robust_cost, Kernel};
 use super::woodbury::{Cholesky, LowRank};
 use crate::error::{HitlError, Result};
 use crate::factors::Factor;
@@ -392,9 +393,16 @@ impl SparsityPattern {
         (b != NO_BLOCK).then(|| self.block_offset[b])
     }
 
-    /// Accumulates `H = J^T J` and `g = J^T r` at `values`; returns chi2 `|r|^2`. The rows of wide
-    /// factors go to `g` and to U, not to the sparse `h`.
-    pub fn linearize(&mut self, factors: &[Box<dyn Factor>], values: &Values) -> f64 {
+    /// Accumulates `H = J^T J` and `g = J^T r` at `values`; returns the cost: chi2 `|r|^2`, or
+    /// with robust kernels (`kernels[fi]`, empty for none) `sum rho(|r|^2)`, the rows of a robust
+    /// factor scaled by `sqrt(rho')` (see `robust`). The rows of wide factors go to `g` and to U,
+    /// not to the sparse `h`.
+    pub fn linearize(
+        &mut self,
+        factors: &[Box<dyn Factor>],
+        values: &Values,
+        kernels: &[Option<Kernel>],
+    ) -> f64 {
         self.h.fill(0.0);
         self.g.fill(0.0);
         let mut r = vec![0.0; self.max_residual];
@@ -404,7 +412,17 @@ impl SparsityPattern {
             let d = f.residual_dim();
             let keys = f.keys();
             f.linearize(values, &mut r[..d], &mut jac);
-            chi2 += r[..d].iter().map(|v| v * v).sum::<f64>();
+            let s = r[..d].iter().map(|v| v * v).sum::<f64>();
+            match kernels.get(fi).copied().flatten() {
+                None => chi2 += s,
+                Some(k) => {
+                    chi2 += k.rho(s);
+                    let sw = k.weight(s).sqrt();
+                    let cols: usize = keys.iter().map(|k| k.dim()).sum();
+                    r[..d].iter_mut().for_each(|v| *v *= sw);
+                    jac[..d * cols].iter_mut().for_each(|v| *v *= sw);
+                }
+            }
             if let Some(wi) = self.wide.wide_index(fi) {
                 self.store_wide(wi, keys, &r[..d], &jac);
                 continue;
@@ -478,6 +496,36 @@ impl SparsityPattern {
         }
         self.wide.update_diagonal();
         chi2
+    }
+
+    /// The cost at `values` without linearizing (trial points): chi2, or `sum rho(|r|^2)`.
+    pub fn cost(factors: &[Box<dyn Factor>], values: &Values, kernels: &[Option<Kernel>]) -> f64 {
+        if kernels.is_empty() {
+            return factors.iter().map(|f| f.chi2(values)).sum();
+        }
+        factors
+            .iter()
+            .zip(kernels)
+            .map(|(f, &k)| robust_cost(k, f.chi2(values)))
+            .sum()
+    }
+
+    /// `v^T H v` for the full `H = H_s + U U^T` at the last linearization (the dogleg's
+    /// steepest-descent step length needs `g^T H g`).
+    pub fn hessian_quadratic(&self, v: &[f64]) -> f64 {
+        let mut q = 0.0;
+        for c in 0..self.n {
+            for k in self.col_ptr[c]..self.col_ptr[c + 1] {
+                let r = self.row_idx[k];
+                let t = self.h[k] * v[r] * v[c];
+                q += if r == c { t } else { 2.0 * t };
+            }
+        }
+        for (ix, u) in self.wide.rows() {
+            let d: f64 = ix.iter().zip(u).map(|(&i, &x)| x * v[i]).sum();
+            q += d * d;
+        }
+        q
     }
 
     /// A wide factor's share of `linearize`: `J^T r` into `g`, its Jacobian rows into U.
@@ -867,7 +915,7 @@ mod tests {
         for &n in &[5usize, 60, 400] {
             let (mut g, values) = ring(n);
             let (factors, p) = g.parts().unwrap();
-            p.linearize(factors, &values);
+            p.linearize(factors, &values, &[]);
             for &(mu, diag) in &[(0.0, false), (1e-3, true), (10.0, false)] {
                 let mut delta = vec![0.0; p.n];
                 assert!(p.solve_damped(mu, diag, &mut delta).unwrap());
@@ -889,7 +937,7 @@ mod tests {
     /// Checks the full `H = H_s + U U^T` and `g` against a central-difference Jacobian.
     fn check_against_numerical_jacobian(g: &mut FactorGraph, values: &Values) {
         let (factors, p) = g.parts().unwrap();
-        p.linearize(factors, values);
+        p.linearize(factors, values, &[]);
         let n = p.n;
         let m: usize = factors.iter().map(|f| f.residual_dim()).sum();
         let stack = |v: &Values| {
@@ -1119,7 +1167,7 @@ mod tests {
         for n in [50usize, 300] {
             let (mut g, values) = corrected(n, Relations::Wide, false);
             let (factors, p) = g.parts().unwrap();
-            p.linearize(factors, &values);
+            p.linearize(factors, &values, &[]);
             assert_eq!(p.wide.rank(), 5);
             let h = dense_hessian(p);
             let g_vec = nalgebra::DVector::from_column_slice(&p.g);
@@ -1173,8 +1221,8 @@ mod tests {
             pw.symbolic.raw(),
             SymbolicCholeskyRaw::Supernodal(_)
         ));
-        pw.linearize(fw, &values);
-        pn.linearize(fnarrow, &values);
+        pw.linearize(fw, &values, &[]);
+        pn.linearize(fnarrow, &values, &[]);
         for &(mu, diag) in &[(0.0, false), (1e-5, false), (1e-2, true)] {
             let mut dw = vec![0.0; pw.n];
             let mut dn = vec![0.0; pn.n];
@@ -1249,7 +1297,7 @@ mod tests {
         // (its 3 rows are not in U); the collinear is still wide.
         assert_eq!(p.wide.rank(), 2);
         assert!(p.offset_of(Key::Pose(60)).is_some());
-        p.linearize(factors, &values);
+        p.linearize(factors, &values, &[]);
         let h = dense_hessian(p);
         let o = p.offset_of(Key::Pose(60)).unwrap();
         assert!(h[(o, o)] > 0.0 && h[(o + 2, o + 2)] > 0.0);
@@ -1280,7 +1328,7 @@ mod tests {
         ];
         let cov = crate::solver::marginal_covariances(&mut g, &values, &keys).unwrap();
         let (factors, p) = g.parts().unwrap();
-        p.linearize(factors, &values);
+        p.linearize(factors, &values, &[]);
         let inv = dense_hessian(p).cholesky().unwrap().inverse();
         for (key, block) in keys.iter().zip(&cov) {
             let d = key.dim();
@@ -1307,7 +1355,7 @@ mod tests {
     fn natural_triplets_include_the_wide_rows() {
         let (mut g, values) = corrected(60, Relations::Wide, false);
         let (factors, p) = g.parts().unwrap();
-        p.linearize(factors, &values);
+        p.linearize(factors, &values, &[]);
         let (rows, cols, vals, grad, keys) = p.upper_triplets_natural();
         let mut seen = std::collections::HashSet::new();
         let mut natural = nalgebra::DMatrix::zeros(p.n, p.n);
