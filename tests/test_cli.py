@@ -102,3 +102,71 @@ def test_console_script_help_and_exit_code(tmp_path: Path) -> None:
     assert run.returncode == 2
     assert "Traceback" not in run.stderr
     assert np.char.count(run.stderr, "\n") == 1
+
+
+def _jittered_chain_file(path: Path, num_poses: int = 400, seed: int = 0) -> None:
+    """A g2o odometry chain with exact measurements and vertices off by 1 m / 1 rad."""
+    rng = np.random.default_rng(seed)
+    lines = []
+    for i in range(num_poses):
+        x, y, t = (0.0, 0.0, 0.0) if i == 0 else (*rng.normal(0, 1.0, 2), rng.normal(0, 1.0))
+        lines.append(f"VERTEX_SE2 {i} {x} {y} {t}")
+    for i in range(num_poses - 1):
+        lines.append(f"EDGE_SE2 {i} {i + 1} 1 0 {rng.normal(0, 0.2)} 100 0 0 100 0 1000")
+    path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("init", ["tree", "chordal"])
+def test_solve_from_a_computed_start(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], init: str
+) -> None:
+    graph_path = tmp_path / "chain.g2o"
+    _jittered_chain_file(graph_path)
+    out = tmp_path / "out.g2o"
+    assert main(["solve", str(graph_path), "-o", str(out), "--init", init, "--quiet"]) == 0
+    line = capsys.readouterr().out.strip()
+    assert "converged (function_tolerance:" in line
+    graph = hitl_slam.load_graph(graph_path)
+    assert hitl_slam.chi2(graph, hitl_slam.load_graph(out).poses) < 1e-9
+
+
+def test_not_converged_exits_3_and_still_writes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    graph_path = tmp_path / "chain.g2o"
+    _jittered_chain_file(graph_path)
+    out = tmp_path / "out.g2o"
+    code = main(["solve", str(graph_path), "-o", str(out), "--max-iterations", "1", "--quiet"])
+    assert code == 3
+    assert "NOT converged (max_iterations:" in capsys.readouterr().out
+    assert out.is_file()
+
+
+def test_robust_solve_lists_the_down_weighted_edges(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    graph_path = tmp_path / "m.g2o"
+    main(["generate", str(graph_path), "--poses", "300", "--seed", "4"])
+    bad = "EDGE_SE2 10 250 7 -3 2.5 44.7 0 0 44.7 0 44.7\n"
+    graph_path.write_text(graph_path.read_text() + bad)
+    capsys.readouterr()
+    out = tmp_path / "out.g2o"
+    args = ["solve", str(graph_path), "-o", str(out), "--robust", "dcs:10", "--quiet"]
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "robust (loop=dcs:10)" in text
+    assert "10->250 (w " in text
+    # The edge class is chosen with CLASS=; an unknown class is bad input.
+    args = ["solve", str(graph_path), "-o", str(out), "--robust", "wheel=dcs"]
+    assert main(args) == 2
+    assert "unknown edge class" in capsys.readouterr().err
+
+
+def test_solve_help_teaches_init_robust_and_exit_codes(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with pytest.raises(SystemExit):
+        main(["solve", "--help"])
+    text = capsys.readouterr().out
+    for needle in ["--init", "chordal", "--robust", "dcs", "dogleg", "3 not converged"]:
+        assert needle in text

@@ -110,6 +110,10 @@ pub trait Factor: Send + Sync + std::fmt::Debug {
     }
 }
 
+/// The largest information entry accepted (as the file readers' limit): beyond it, whitened
+/// residuals and `J^T J` leave float64's range for ordinary residuals.
+pub const MAX_INFORMATION: f64 = 1e30;
+
 /// Upper Cholesky factor `U` of a 3x3 information matrix (`Omega = U^T U`), so that the whitened
 /// residual is `U r`. Fails with a clear message when Omega is not symmetric positive definite.
 pub fn sqrt_information(omega: &[[f64; 3]; 3]) -> Result<[[f64; 3]; 3]> {
@@ -118,6 +122,13 @@ pub fn sqrt_information(omega: &[[f64; 3]; 3]) -> Result<[[f64; 3]; 3]> {
             if !v.is_finite() {
                 return input(format!(
                     "information matrix entry ({i}, {j}) is {v}; use finite numbers"
+                ));
+            }
+            if v.abs() > MAX_INFORMATION {
+                return input(format!(
+                    "information matrix entry ({i}, {j}) is {v:e}, beyond +/-{MAX_INFORMATION:e}: \
+                     weighted squared residuals would overflow; for an edge meant to be exact use \
+                     a large but sane weight such as 1e12"
                 ));
             }
             let w = omega[j][i];
