@@ -283,9 +283,13 @@ def test_bad_solve_arguments_are_input_errors() -> None:
 
 def test_overflowing_cost_is_an_input_error() -> None:
     graph = _tiny()
-    graph.information = np.stack([np.eye(3) * 1e308] * 2)
+    graph.information = np.stack([np.eye(3) * 1e29] * 2)
     with pytest.raises(InputError, match="initial cost is not finite"):
-        hitl_slam.optimize(graph, initial=np.array([[0, 0, 0], [5.0, 1, 2], [3, 3, 3]]))
+        hitl_slam.optimize(graph, initial=np.array([[0, 0, 0], [5e150, 1, 2], [3, 3, 3]]))
+    graph = _tiny()  # a fresh graph: the engine is built once per PoseGraph
+    graph.information = np.stack([np.eye(3) * 1e308] * 2)
+    with pytest.raises(InputError, match=r"is 1e308, beyond \+/-1e30"):
+        hitl_slam.optimize(graph)
 
 
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
