@@ -11,7 +11,7 @@ import pytest
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from hitl_slam import _core
+from hitl_slam import InputError, _core
 from hitl_slam.config import DEFAULT
 from hitl_slam.corrections import Interpretation, Mode
 from hitl_slam.map import Map
@@ -278,3 +278,27 @@ def test_joint_solve_matches_scipy_least_squares() -> None:
     np.testing.assert_allclose(wrap(ours[:, 2] - theirs[:, 2]), 0.0, atol=1e-6)
     np.testing.assert_allclose(lines, result.x[3 * (n - 1) :].reshape(-1, 2), atol=1e-6)
     assert float(fun(result.x) @ fun(result.x)) == pytest.approx(report.final_chi2, rel=1e-6)
+
+
+@pytest.mark.parametrize("robust", ["odometry=cauchy:1", "human=huber", "odometry=dcs:10,loop=dcs"])
+def test_joint_solve_takes_robust_kernels_per_edge_class(world: World, robust: str) -> None:
+    (wa, la, ha, xa), (wb, lb, hb, xb) = CASES[Mode.COLOCATION]
+    rows_a, rows_b = _rows(world, wa, la, ha, xa), _rows(world, wb, lb, hb, xb)
+    h = _interpretation(world, Mode.COLOCATION, rows_a, rows_b)
+    moved, _ = explicit_and_backpropagate(world.map, world.map.poses, h)
+    config = DEFAULT.replace(robust=robust)
+    poses, _, report = solve_all(world.map, [h], config, moved)
+    assert report.converged
+    assert report.weights.shape == (report.weights.size,)
+    assert np.all((report.weights > 0) & (report.weights <= 1))
+    if "human" not in robust:
+        # Human factors keep full weight when only robot edges are robust.
+        assert report.weights[-1] == 1.0
+    angle, offset = _relation_error(world.map, poses, h)
+    assert angle < 0.5
+    assert offset < 0.05
+
+
+def test_config_refuses_an_unknown_edge_class() -> None:
+    with pytest.raises(InputError, match="unknown edge class"):
+        DEFAULT.replace(robust="wheels=huber")

@@ -67,6 +67,9 @@ class Config:
     max_iterations: int = 50
     relative_tolerance: float = 1e-6
     absolute_tolerance: float = 1e-6
+    # robust kernels in the joint solve, per edge class ("" for none), e.g. "odometry=cauchy:1"
+    # (hitl_slam.solve.robust_pairs)
+    robust: str = ""
     # §6 metric / occupancy export
     grid_resolution: float = 0.05  # [m]
     # §6 inconsistency metric: its robustness rules (without them a perfect map scores 100s m^2)
@@ -78,6 +81,11 @@ class Config:
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if isinstance(value, bool):
+                continue
+            if isinstance(value, str):
+                from hitl_slam.solve import robust_pairs
+
+                robust_pairs(value)
                 continue
             if not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
                 raise InputError(f"config {f.name} must be a finite number >= 0, got {value!r}")

@@ -18,6 +18,7 @@ from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation
 from hitl_slam.map import Map, motion_model_information, to_world
+from hitl_slam.solve import robust_pairs
 
 __all__ = [
     "CorrectionResult",
@@ -130,6 +131,7 @@ def solve_all(
         max_iterations=config.max_iterations,
         relative_tolerance=config.relative_tolerance,
         absolute_tolerance=config.absolute_tolerance,
+        robust=robust_pairs(config.robust),
     )
     return poses, solved_lines, report
 
