@@ -19,13 +19,14 @@ from hitl_slam._core import IterationRecord, SolveReport, __version__
 from hitl_slam.errors import CorrectionRejected, HitlSlamError, InputError, SolverError
 from hitl_slam.graph import PoseGraph
 from hitl_slam.io import LoadReport, load_graph, load_graph_with_report, save_graph
-from hitl_slam.solve import Method, chi2, marginals, optimize
+from hitl_slam.solve import Init, Method, chi2, downweighted, marginals, optimize
 
 logging.getLogger("hitl_slam").addHandler(logging.NullHandler())
 
 __all__ = [
     "CorrectionRejected",
     "HitlSlamError",
+    "Init",
     "InputError",
     "IterationRecord",
     "LoadReport",
@@ -35,6 +36,7 @@ __all__ = [
     "SolverError",
     "__version__",
     "chi2",
+    "downweighted",
     "load_graph",
     "load_graph_with_report",
     "marginals",
