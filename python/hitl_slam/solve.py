@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Mapping
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -60,24 +61,18 @@ class Init(enum.Enum):
     CHORDAL = "chordal"
 
 
-def _method(method: Method | str) -> Method:
-    if isinstance(method, Method):
-        return method
-    try:
-        return Method(method)
-    except ValueError:
-        choices = ", ".join(repr(m.value) for m in Method)
-        raise InputError(f"unknown method {method!r}; use one of {choices}") from None
+E = TypeVar("E", Method, Init)
 
 
-def _init(init: Init | str) -> Init:
-    if isinstance(init, Init):
-        return init
+def _choice(kind: type[E], value: E | str, what: str) -> E:
+    """An enum member from itself or its value; anything else is an InputError listing them."""
+    if isinstance(value, kind):
+        return value
     try:
-        return Init(init)
+        return kind(value)
     except ValueError:
-        choices = ", ".join(repr(m.value) for m in Init)
-        raise InputError(f"unknown init {init!r}; use one of {choices}") from None
+        choices = ", ".join(repr(m.value) for m in kind)
+        raise InputError(f"unknown {what} {value!r}; use one of {choices}") from None
 
 
 def robust_pairs(robust: RobustSpec) -> list[tuple[str, str]]:
@@ -190,8 +185,8 @@ def optimize(
     start = _poses(graph, initial)
     return graph.engine().optimize(
         start,
-        method=_method(method).value,
-        init=_init(init).value,
+        method=_choice(Method, method, "method").value,
+        init=_choice(Init, init, "init").value,
         robust=robust_pairs(robust),
         max_iterations=max_iterations,
         relative_tolerance=relative_tolerance,

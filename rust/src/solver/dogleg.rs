@@ -89,16 +89,8 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
             // Decrease predicted by |r + J h|^2: -2 g.h - h^T H h.
             let h_h_h = p.pattern.hessian_quadratic(&h);
             let predicted = -2.0 * p.gradient_dot(&h) - h_h_h;
-            trial.clone_from(values);
-            p.pattern.retract(&mut trial, &h);
-            let new_cost = p.cost(&trial);
-            let actual = cost - new_cost;
-            if new_cost.is_finite() && actual > 0.0 {
-                let rho = if predicted > 0.0 {
-                    actual / predicted
-                } else {
-                    1.0
-                };
+            let (new_cost, gain) = p.try_step(values, &h, &mut trial, cost, predicted);
+            if let Some(rho) = gain {
                 if rho > 0.75 {
                     radius = radius.max(3.0 * step_norm);
                 } else if rho < 0.25 {

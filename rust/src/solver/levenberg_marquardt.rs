@@ -40,16 +40,9 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
                 let damping = lambda * p.pattern.damping_quadratic(&delta, params.diagonal_damping);
                 let predicted = gd + damping;
                 undamped = damping <= UNDAMPED_SHARE * gd;
-                trial.clone_from(values);
-                p.pattern.retract(&mut trial, &delta);
-                new_cost = p.cost(&trial);
-                let actual = cost - new_cost;
-                if new_cost.is_finite() && actual > 0.0 {
-                    let rho = if predicted > 0.0 {
-                        actual / predicted
-                    } else {
-                        1.0
-                    };
+                let (c, gain) = p.try_step(values, &delta, &mut trial, cost, predicted);
+                new_cost = c;
+                if let Some(rho) = gain {
                     lambda *= f64::max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0).powi(3));
                     lambda = lambda.max(1e-20);
                     nu = 2.0;

@@ -9,6 +9,7 @@ mod gauss_newton;
 mod levenberg_marquardt;
 mod marginals;
 mod optimize;
+mod ordering;
 mod params;
 mod pattern;
 mod problem;
@@ -18,6 +19,7 @@ mod woodbury;
 
 pub use marginals::marginal_covariances;
 pub use optimize::optimize;
+pub(crate) use ordering::block_amd;
 pub use params::{Method, SolverParams};
 pub use pattern::SparsityPattern;
 pub use report::{IterationRecord, SolveReport, Termination};

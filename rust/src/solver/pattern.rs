@@ -18,11 +18,12 @@ use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky,
     SymmetricOrdering,
 };
-use faer::sparse::linalg::{amd, SupernodalThreshold};
+use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side, Spec};
 use std::collections::HashMap;
 
+use super::ordering::block_amd;
 use super::robust::{robust_cost, Kernel};
 use super::woodbury::{Cholesky, LowRank};
 use crate::error::{HitlError, Result};
@@ -202,7 +203,7 @@ impl SparsityPattern {
             adj_idx[begin..].sort_unstable();
             adj_ptr.push(adj_idx.len());
         }
-        let perm_fwd = block_amd(nb, &adj_ptr, &adj_idx)?;
+        let (perm_fwd, _) = block_amd(nb, &adj_ptr, &adj_idx)?;
         let mut perm_inv = vec![0usize; nb];
         for (new, &old) in perm_fwd.iter().enumerate() {
             perm_inv[old] = new;
@@ -827,40 +828,6 @@ impl std::fmt::Debug for SparsityPattern {
             .field("wide_rows", &self.wide.rank())
             .finish_non_exhaustive()
     }
-}
-
-/// AMD on the block graph (given as symmetric CSR without diagonal); returns `perm_fwd`
-/// (new position -> old block).
-fn block_amd(nb: usize, adj_ptr: &[usize], adj_idx: &[usize]) -> Result<Vec<usize>> {
-    let mut col_ptr = Vec::with_capacity(nb + 1);
-    let mut row_idx = Vec::with_capacity(adj_idx.len() / 2 + nb);
-    col_ptr.push(0usize);
-    for c in 0..nb {
-        // Upper triangle plus the diagonal; AMD works on the pattern of A + A^T.
-        row_idx.extend(
-            adj_idx[adj_ptr[c]..adj_ptr[c + 1]]
-                .iter()
-                .copied()
-                .filter(|&r| r < c),
-        );
-        row_idx.push(c);
-        col_ptr.push(row_idx.len());
-    }
-    let mut fwd = vec![0usize; nb];
-    let mut inv = vec![0usize; nb];
-    let sym = SymbolicSparseColMatRef::new_checked(nb, nb, &col_ptr, None, &row_idx);
-    let req = amd::order_scratch::<usize>(nb, row_idx.len());
-    let mut mem =
-        MemBuffer::try_new(req).map_err(|_| HitlError::Solver("out of memory for AMD".into()))?;
-    amd::order(
-        &mut fwd,
-        &mut inv,
-        sym,
-        amd::Control::default(),
-        MemStack::new(&mut mem),
-    )
-    .map_err(|e| HitlError::Solver(format!("fill-reducing ordering failed: {e:?}")))?;
-    Ok(fwd)
 }
 
 #[cfg(test)]

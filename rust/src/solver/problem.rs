@@ -103,6 +103,32 @@ impl<'a> Problem<'a> {
         Ok(ok)
     }
 
+    /// Evaluates the step `delta` from `values` into `trial`: the trial cost and, when it
+    /// decreases the cost `cost`, the gain ratio against the model's `predicted` decrease.
+    pub fn try_step(
+        &mut self,
+        values: &Values,
+        delta: &[f64],
+        trial: &mut Values,
+        cost: f64,
+        predicted: f64,
+    ) -> (f64, Option<f64>) {
+        trial.clone_from(values);
+        self.pattern.retract(trial, delta);
+        let new_cost = self.cost(trial);
+        let actual = cost - new_cost;
+        if new_cost.is_finite() && actual > 0.0 {
+            let rho = if predicted > 0.0 {
+                actual / predicted
+            } else {
+                1.0
+            };
+            (new_cost, Some(rho))
+        } else {
+            (new_cost, None)
+        }
+    }
+
     pub fn max_gradient(&self) -> f64 {
         self.pattern.g.iter().fold(0.0f64, |m, v| m.max(v.abs()))
     }
