@@ -170,3 +170,20 @@ def test_solve_help_teaches_init_robust_and_exit_codes(
     text = capsys.readouterr().out
     for needle in ["--init", "chordal", "--robust", "dcs", "dogleg", "3 not converged"]:
         assert needle in text
+
+
+def test_metrics_reads_a_silent_log_as_the_sensor_saw_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from test_map_io import _room_log
+
+    log = tmp_path / "silent.clf"
+    log.write_text(_room_log(50.0))
+    assert main(["metrics", str(log), "--quiet"]) == 0
+    captured = capsys.readouterr()
+    assert "maximum laser range inferred: 600 readings piled at 49.980 m" in captured.err
+    assert "40 poses, 6600 points" in captured.out
+    assert main(["metrics", str(log), "--quiet", "--max-range", "2.5"]) == 0
+    captured = capsys.readouterr()
+    assert "inferred" not in captured.err
+    assert "6600 points" not in captured.out

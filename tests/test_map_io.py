@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from hitl_slam.errors import InputError
 from hitl_slam.io import load_graph
-from hitl_slam.io.carmen import PoseSource, read_carmen
+from hitl_slam.io.carmen import PoseSource, infer_max_range, read_carmen
 from hitl_slam.io.covars import read_covars, write_covars
 from hitl_slam.io.export import (
     FREE,
@@ -320,6 +320,65 @@ def test_max_range_and_invalid_beams_are_not_points(tmp_path: Path) -> None:
     assert len(read_carmen(with_param).points) == 1 + 171
     assert len(read_carmen(path, max_range=2.0).points) == 1
     assert len(read_carmen(path, max_range=100.0).points) == 5 + 171
+
+
+def _room_log(no_return: float, scans: int = 40, seed: int = 0, param: str = "") -> str:
+    """A robot turning in a 6 m room whose door lets some beams out: those read `no_return`
+    (the sensor's value for no echo), spread by rounding over a few centimetres."""
+    rng = np.random.default_rng(seed)
+    lines = [param] if param else []
+    for k in range(scans):
+        theta = 0.1 * k
+        ranges = 2.0 + 1.0 * np.abs(np.sin(np.linspace(0, 3, 180) + theta))
+        ranges += rng.normal(0, 0.01, 180)
+        door = slice(60 + k % 20, 75 + k % 20)
+        ranges[door] = no_return - rng.choice([0.0, 0.01, 0.02], ranges[door].size)
+        lines.append(flaser(ranges.tolist(), pose=(0.0, 0.0, theta), stamp=1.0 + k))
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("no_return", [50.0, 32.767, 8.191])
+@pytest.mark.parametrize("seed", [0, 3])
+def test_no_returns_of_a_silent_log_are_inferred_and_dropped(
+    tmp_path: Path, no_return: float, seed: int
+) -> None:
+    path = write(tmp_path, "silent.clf", _room_log(no_return, seed=seed))
+    result = read_carmen(path)
+    ranges = np.hypot(*result.points.T)
+    assert ranges.max() < 3.2  # no phantom ring at the sensor's maximum
+    assert result.metadata["max_range_source"].startswith("inferred: 600 readings piled at")
+    assert result.metadata["flaser_max_range"] == pytest.approx(no_return - 0.02)
+    # A PARAM or --max-range wins over the inference.
+    with_param = write(
+        tmp_path,
+        "param.clf",
+        _room_log(no_return, seed=seed, param="PARAM robot_front_laser_max 80.0 0 h 0"),
+    )
+    kept = read_carmen(with_param)
+    assert kept.metadata["max_range_source"] == "PARAM robot_front_laser_max"
+    assert np.hypot(*kept.points.T).max() > no_return - 0.1
+    given = read_carmen(path, max_range=2.5)
+    assert given.metadata["max_range_source"] == "given (--max-range)"
+    assert np.hypot(*given.points.T).max() < 2.5
+
+
+def test_far_real_returns_are_not_mistaken_for_no_returns(tmp_path: Path) -> None:
+    # A long hall: the farthest readings spread over metres, they do not pile at one value.
+    rng = np.random.default_rng(1)
+    lines = [
+        flaser(rng.uniform(1.0, 40.0, 180).tolist(), pose=(0.0, 0.0, 0.1 * k), stamp=1.0 + k)
+        for k in range(50)
+    ]
+    result = read_carmen(write(tmp_path, "hall.clf", "\n".join(lines) + "\n"))
+    assert result.num_points == 50 * 180
+    assert result.metadata["max_range_source"].startswith("default 80 m")
+
+
+def test_infer_max_range_needs_a_pile() -> None:
+    assert infer_max_range(np.array([1.0, 2.0, 3.0])) is None
+    assert infer_max_range(np.array([np.nan, -1.0, 0.0])) is None
+    piled = np.concatenate([np.linspace(0.5, 20.0, 500), np.full(30, 25.0)])
+    assert infer_max_range(piled) == (25.0, 30)
 
 
 def test_laser_offset_param_and_pose_source(tmp_path: Path) -> None:

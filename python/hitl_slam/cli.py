@@ -150,6 +150,30 @@ def _with_progress(label: str, quiet: bool, work: Callable[[], T]) -> T:
     return result[0]
 
 
+def _load_map(args: argparse.Namespace, source: str | Path) -> Map:
+    """The map of a command's MAP argument, with ``--max-range``; says on stderr how the laser's
+    maximum range was found when the log stated none."""
+    from hitl_slam.io.maps import load_map
+
+    max_range = getattr(args, "max_range", None)
+    the_map = _with_progress("loading", args.quiet, lambda: load_map(source, max_range=max_range))
+    how = the_map.metadata.get("max_range_source")
+    if isinstance(how, str) and how.startswith("inferred"):
+        print(f"hitl-slam: {source}: maximum laser range {how}", file=sys.stderr)
+    return the_map
+
+
+def _add_max_range(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--max-range",
+        type=float,
+        metavar="M",
+        help="the laser's maximum range in metres (CARMEN logs): readings at or beyond it are "
+        "no-returns, not obstacles; default: the log's PARAM robot_front_laser_max, else "
+        "inferred from readings piled at the largest value, else 80",
+    )
+
+
 def _cmd_solve(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -249,7 +273,6 @@ def _one_line(text: str) -> str:
 def _cmd_correct(args: argparse.Namespace) -> int:
     from hitl_slam.corrections_file import Apply, Undo, read_corrections
     from hitl_slam.errors import CorrectionRejected
-    from hitl_slam.io.maps import load_map
     from hitl_slam.session import Session, moved_poses
 
     out = Path(args.output)
@@ -265,7 +288,7 @@ def _cmd_correct(args: argparse.Namespace) -> int:
             )
     steps = read_corrections(args.corrections)
     t_start = time.perf_counter()
-    the_map = _with_progress("loading", args.quiet, lambda: load_map(args.map))
+    the_map = _load_map(args, args.map)
     rejected: list[tuple[int, str]] = []
     counts = {"applied": 0, "undo": 0, "redo": 0}
 
@@ -342,7 +365,6 @@ def _cmd_correct(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from hitl_slam.io.maps import load_map
 
     out = Path(args.output)
     _check_map_output(out, (".jsonl",))
@@ -361,7 +383,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         return 0
     from hitl_slam.io.export import export
 
-    the_map = _with_progress("loading", args.quiet, lambda: load_map(source))
+    the_map = _load_map(args, source)
     _with_progress("writing", args.quiet, lambda: export(the_map, the_map.poses, out))
     print(f"wrote {out}: {the_map.num_poses} poses, {the_map.num_points} points from {source}")
     return 0
@@ -371,7 +393,6 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
     import math
 
     from hitl_slam.config import DEFAULT
-    from hitl_slam.io.maps import load_map
     from hitl_slam.io.relations import read_relations
     from hitl_slam.metrics import inconsistency, relations_error
 
@@ -387,7 +408,7 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
         config = DEFAULT.replace(grid_resolution=args.resolution)
     # Read before the (slower) map, so a bad relations file fails fast.
     relations = None if args.relations is None else read_relations(args.relations)
-    the_map = _with_progress("loading", args.quiet, lambda: load_map(args.map))
+    the_map = _load_map(args, args.map)
     # Matched before the metric runs, so relations that do not fit the map fail before any output.
     err = None if relations is None else relations_error(the_map, None, relations)
     t0 = time.perf_counter()
@@ -527,6 +548,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
     run_server(
         args.target,
+        max_range=args.max_range,
         demo=(args.demo_world or "lost-poses") if args.demo else None,
         seed=args.seed,
         host=args.host,
@@ -639,6 +661,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     correct.add_argument("map", metavar="MAP", help="input map (.covars, .clf/.log, .hitl)")
+    _add_max_range(correct)
     correct.add_argument(
         "--corrections", required=True, metavar="C.jsonl", help="corrections, one per line"
     )
@@ -664,6 +687,7 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument(
         "input", metavar="MAP_OR_SESSION", help="input map (.covars, .clf/.log) or session (.hitl)"
     )
+    _add_max_range(export)
     export.add_argument("-o", "--output", required=True, metavar="OUT", help="output file")
     export.add_argument("-q", "--quiet", action="store_true", help="only the summary line")
     export.set_defaults(func=_cmd_export)
@@ -676,6 +700,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     metrics.add_argument("map", metavar="MAP", help="input map (.covars, .clf/.log, .hitl)")
+    _add_max_range(metrics)
     metrics.add_argument(
         "--relations", metavar="R", help="ground-truth relations (.relations) for the map's log"
     )
@@ -748,6 +773,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--journal", metavar="C.jsonl", help="a corrections file to step through (key l)"
     )
     serve.add_argument("--open", action="store_true", help="open the page in the web browser")
+    _add_max_range(serve)
     serve.set_defaults(func=_cmd_serve)
 
     evaluate = sub.add_parser(

@@ -21,7 +21,7 @@ from hitl_slam.errors import InputError
 from hitl_slam.io.textfile import PathLike, input_error, parse_int, read_lines
 from hitl_slam.map import Map
 
-__all__ = ["DEFAULT_MAX_RANGE", "PoseSource", "read_carmen"]
+__all__ = ["DEFAULT_MAX_RANGE", "PoseSource", "infer_max_range", "read_carmen"]
 
 _log = logging.getLogger(__name__)
 
@@ -30,6 +30,15 @@ DEFAULT_MAX_RANGE = 80.0
 default for the old laser messages)."""
 
 _MAX_RANGE_MARGIN = 1e-3  # [m] a beam within this of the maximum range is a max-range reading
+# Inferring the maximum range of a log that states none: no-return readings pile up at the largest
+# value the sensor reports (seen: 32.767 m, a 16-bit millimetre clamp; 51.1 m; 81.9 m), spread
+# over a few centimetres by rounding. A pile is the readings within _PILE_WIDTH of the largest
+# one, when there are at least _PILE_MIN of them and _PILE_RATIO times as many as in a window of
+# the same width just below (the _PILE_BASELINE metres underneath), and they are a minority.
+_PILE_WIDTH = 0.15  # [m]
+_PILE_BASELINE = 2.0  # [m]
+_PILE_MIN = 10
+_PILE_RATIO = 10.0
 _FIX_LINE = "fix the line or delete it"
 _FLASER_TAIL = ("x", "y", "theta", "odom_x", "odom_y", "odom_theta", "ipc_timestamp")
 
@@ -133,8 +142,27 @@ def read_carmen(
     poses[:, 2] = _wrap(poses[:, 2])
     keep = _subsample(poses, min_travel, min_rotation)
 
-    flaser_max = params.get(_MAX_RANGE_PARAM, DEFAULT_MAX_RANGE)
     kept = np.flatnonzero(keep)
+    if max_range is not None:
+        flaser_max, max_range_source = max_range, "given (--max-range)"
+    elif _MAX_RANGE_PARAM in params:
+        flaser_max = params[_MAX_RANGE_PARAM]
+        max_range_source = f"PARAM {_MAX_RANGE_PARAM}"
+    elif laser_tag == "FLASER" and (
+        inferred := infer_max_range(np.concatenate([scans.ranges[k] for k in kept]))
+    ):
+        flaser_max = inferred[0]
+        max_range_source = (
+            f"inferred: {inferred[1]} readings piled at {flaser_max:.3f} m and above "
+            "(no-returns, dropped); the log states no robot_front_laser_max"
+        )
+        _log.info("%s: maximum laser range %s", name, max_range_source)
+    else:
+        flaser_max = DEFAULT_MAX_RANGE
+        max_range_source = (
+            f"default {DEFAULT_MAX_RANGE:g} m (the log states none, and its largest readings do "
+            "not pile up at one value)"
+        )
     per_scan_max = np.array(scans.max_range)[kept]
     per_scan_max = np.where(np.isnan(per_scan_max), flaser_max, per_scan_max)
     if max_range is not None:
@@ -163,12 +191,31 @@ def read_carmen(
             "laser_offset": offset.tolist(),
             "max_range": max_range,
             "flaser_max_range": flaser_max,
+            "max_range_source": max_range_source,
             "scans_in_log": len(scans.lines),
             "scan_lines": np.array(scans.lines, dtype=np.int64)[kept],
             "skipped_lines": dict(skipped),
         }
     )
     return result
+
+
+def infer_max_range(ranges: NDArray[np.float64]) -> tuple[float, int] | None:
+    """``(maximum range, readings at it)`` when the largest readings pile up at one value (the
+    sensor's no-return readings), else None (the largest readings look like real returns)."""
+    r = ranges[np.isfinite(ranges) & (ranges > 0)]
+    if r.size == 0:
+        return None
+    top = float(r.max())
+    pile = r >= top - _PILE_WIDTH
+    count = int(pile.sum())
+    below = int(np.count_nonzero((r >= top - _PILE_WIDTH - _PILE_BASELINE) & ~pile))
+    per_window = below * _PILE_WIDTH / _PILE_BASELINE
+    # A third or more of all readings at the largest value is a scene (a robot facing one wall),
+    # not a sensor limit.
+    if count < _PILE_MIN or count < _PILE_RATIO * max(per_window, 1.0) or 3 * count >= r.size:
+        return None
+    return float(r[pile].min()), count
 
 
 def _stem(name: str) -> str:

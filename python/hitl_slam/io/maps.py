@@ -28,9 +28,16 @@ def _extensions(name: str) -> tuple[str, str]:
     return extension, ""
 
 
-def load_map(path: str | os.PathLike[str], config: Config = DEFAULT) -> Map:
+def load_map(
+    path: str | os.PathLike[str], config: Config = DEFAULT, *, max_range: float | None = None
+) -> Map:
     """The map in ``path``: ``.covars``, ``.clf``/``.log`` (+ ``.gz``/``.bz2``), or ``.hitl``
     (the session's current poses; ``config`` does not apply, the session has its own).
+
+    ``max_range`` (m, CARMEN logs only) overrides the laser's maximum range: readings at or
+    beyond it are no-returns, not points. Without it the log's ``PARAM`` is used, or the maximum
+    is inferred from readings piled at the largest value (``map.metadata["max_range_source"]``
+    says which).
 
     Raises:
         InputError: an unsupported extension (the message lists the supported ones), or any
@@ -41,7 +48,12 @@ def load_map(path: str | os.PathLike[str], config: Config = DEFAULT) -> Map:
     if extension in (".clf", ".log"):
         from hitl_slam.io.carmen import read_carmen
 
-        return read_carmen(name, config=config)
+        return read_carmen(name, config=config, max_range=max_range)
+    if max_range is not None:
+        raise InputError(
+            f"{name}: --max-range applies to CARMEN laser logs (.clf/.log); this map's points "
+            "are already filtered"
+        )
     if not compression and extension == ".covars":
         from hitl_slam.io.covars import read_covars
 

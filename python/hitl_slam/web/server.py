@@ -75,6 +75,7 @@ def open_session(
     demo: str | None = None,
     seed: int = 0,
     cwd: str | os.PathLike[str] | None = None,
+    max_range: float | None = None,
 ) -> tuple[Session, str]:
     """The session to serve and a sentence saying where it came from.
 
@@ -125,7 +126,7 @@ def open_session(
         )
     from hitl_slam.io.maps import load_map
 
-    the_map = load_map(source)
+    the_map = load_map(source, max_range=max_range)
     session = Session.new(the_map, path)
     return session, f"created the session {path} from {source} ({_describe(session)})"
 
@@ -182,6 +183,7 @@ def run_server(
     token: str | None = None,
     no_token: bool = False,
     journal: str | os.PathLike[str] | None = None,
+    max_range: float | None = None,
     open_browser: bool = False,
     announce: Callable[[str], None] = lambda _message: None,
     poll_timeout: float = DEFAULT_POLL_TIMEOUT,
@@ -206,7 +208,7 @@ def run_server(
     if no_token and not is_loopback(host):
         raise InputError(f"refusing to serve on {host} without an access token; drop --no-token")
     if (target is None) == (demo is None):
-        open_session(target, demo=demo)  # raises the one-line reason
+        open_session(target, demo=demo, max_range=max_range)  # raises the one-line reason
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be 0..65535 (0: any free port), got {port}")
     steps: list[Step] = []
@@ -219,7 +221,7 @@ def run_server(
     secret = None if no_token else (token if token is not None else new_token())
     sock = _bind(host, port)
     try:
-        session, how = open_session(target, demo=demo, seed=seed)
+        session, how = open_session(target, demo=demo, seed=seed, max_range=max_range)
         try:
             session_host = SessionHost(
                 session, journal=steps, journal_source=source, poll_timeout=poll_timeout
