@@ -62,6 +62,17 @@ class ScenarioResult:
         return 1.0 - self.inconsistency_after / self.inconsistency_before
 
     @property
+    def achieved_fraction(self) -> float:
+        """The reduction as a fraction of what the true poses reach,
+        ``(before - after) / (before - truth)``: 1 is a repair as consistent as the truth (the
+        real logs' scans disagree even on their true poses, so a plain reduction cannot reach 1
+        there). NaN when the damage did not raise the inconsistency above the truth's."""
+        gain = self.inconsistency_before - self.inconsistency_truth
+        if gain <= 0:
+            return float("nan")
+        return (self.inconsistency_before - self.inconsistency_after) / gain
+
+    @property
     def best_reduction(self) -> float:
         """The reduction the true poses themselves show: the most a perfect repair reaches."""
         if self.inconsistency_before <= 0:
@@ -230,9 +241,9 @@ def table(results: Sequence[ScenarioResult]) -> str:
         "| map | poses | angle samples | angle error in (deg) | angle error out (deg) "
         "| spacing samples | spacing error in (m) | spacing error out (m) "
         "| inconsistency in (m^2) | out (m^2) | truth (m^2) | reduction | best possible "
-        "| ATE in (m) | ATE out (m) | corrections | time (s) |"
+        "| of achievable | ATE in (m) | ATE out (m) | corrections | time (s) |"
     )
-    rows = [head, "|" + "---|" * 17]
+    rows = [head, "|" + "---|" * 18]
     for r in results:
         rows.append(
             f"| {r.name} | {r.poses} | {r.angle_samples} "
@@ -240,40 +251,43 @@ def table(results: Sequence[ScenarioResult]) -> str:
             f"| {r.spacing_samples} | {r.spacing_before:.3f} | {r.spacing_after:.3f} "
             f"| {r.inconsistency_before:.1f} | {r.inconsistency_after:.1f} "
             f"| {r.inconsistency_truth:.1f} | {100 * r.inconsistency_reduction:.0f}% "
-            f"| {100 * r.best_reduction:.0f}% | {r.ate_before:.3f} | {r.ate_after:.3f} "
-            f"| {r.corrections} | {r.time_s:.1f} |"
+            f"| {100 * r.best_reduction:.0f}% | {100 * r.achieved_fraction:.0f}% "
+            f"| {r.ate_before:.3f} | {r.ate_after:.3f} | {r.corrections} | {r.time_s:.1f} |"
         )
     if results:
         ang = _nanmean(np.array([r.angle_after for r in results]))
         sp = _nanmean(np.array([r.spacing_after for r in results]))
         red = float(np.mean([r.inconsistency_reduction for r in results]))
         best = float(np.mean([r.best_reduction for r in results]))
+        achieved = _nanmean(np.array([r.achieved_fraction for r in results]))
         rows.append(
             f"| **mean** | | | {_nanmean(np.array([r.angle_before for r in results])):.2f} | "
             f"**{ang:.2f}** | | {_nanmean(np.array([r.spacing_before for r in results])):.3f} | "
-            f"**{sp:.3f}** | | | | **{100 * red:.0f}%** | {100 * best:.0f}% | | | "
-            f"{sum(r.corrections for r in results)} | |"
+            f"**{sp:.3f}** | | | | {100 * red:.0f}% | {100 * best:.0f}% "
+            f"| **{100 * achieved:.0f}%** | | | {sum(r.corrections for r in results)} | |"
         )
     return "\n".join(rows)
 
 
 TARGET_ANGLE_DEG = 1.0
 TARGET_SPACING_M = 0.03
-TARGET_REDUCTION = 0.91
+TARGET_ACHIEVED = 0.80
+"""Mean inconsistency reduction as a fraction of what the true poses reach (issue 11; it replaces
+issue 4's plain 91 % reduction, which the real logs cannot reach even on their true poses)."""
 
 
 def targets(results: Sequence[ScenarioResult]) -> str:
-    """The evaluation's targets (issue 4: mean corrected angular error <= 1.0 degree, mean
-    translational error <= 0.03 m, inconsistency reduced by >= 91 % on average), each with the
-    measured value and whether it is met; for the inconsistency also the ceiling set by the
-    true poses, so an unreachable target reads as such."""
+    """The evaluation's targets: mean corrected angular error <= 1.0 degree, mean translational
+    error <= 0.03 m, and the inconsistency reduced by >= 80 % of what the true poses reach
+    (``(before - after) / (before - truth)``), each with the measured value and whether it is
+    met; the plain reduction and its ceiling are shown beside it."""
     if not results:
         return ""
     ang = _nanmean(np.array([r.angle_after for r in results]))
     sp = _nanmean(np.array([r.spacing_after for r in results]))
     red = float(np.mean([r.inconsistency_reduction for r in results]))
     best = float(np.mean([r.best_reduction for r in results]))
-    generated = [r for r in results if not r.real_log]
+    achieved = _nanmean(np.array([r.achieved_fraction for r in results]))
     lines = [
         "| target | measured | met |",
         "|---|---|---|",
@@ -281,28 +295,14 @@ def targets(results: Sequence[ScenarioResult]) -> str:
         f"| {'yes' if ang <= TARGET_ANGLE_DEG else 'no'} |",
         f"| mean corrected translational error <= {TARGET_SPACING_M:.2f} m | {sp:.3f} m "
         f"| {'yes' if sp <= TARGET_SPACING_M else 'no'} |",
-        f"| mean inconsistency reduction >= {100 * TARGET_REDUCTION:.0f}% | {100 * red:.0f}% "
-        f"| {'yes' if red >= TARGET_REDUCTION else 'no'} |",
+        f"| mean inconsistency reduction >= {100 * TARGET_ACHIEVED:.0f}% of the achievable "
+        f"| {100 * achieved:.0f}% | {'yes' if achieved >= TARGET_ACHIEVED else 'no'} |",
     ]
-    notes = []
-    if best < TARGET_REDUCTION:
-        low = ", ".join(
-            f"{r.name} {100 * r.best_reduction:.0f}%"
-            for r in results
-            if r.best_reduction < TARGET_REDUCTION
-        )
-        notes.append(
-            f"The true poses themselves reduce the inconsistency by {100 * best:.0f}% on "
-            f"average ({low}): the real logs' scans disagree even on their corrected poses "
-            "(moving people, glass, the corrected log's own residual error), so no repair can "
-            f"reach {100 * TARGET_REDUCTION:.0f}% on this set."
-        )
-    if generated:
-        gen = float(np.mean([r.inconsistency_reduction for r in generated]))
-        notes.append(
-            f"On the generated maps alone (the paper's LGRC-like setting, where the true map "
-            f"scores a few percent of the damaged one), the mean reduction is {100 * gen:.0f}%."
-        )
+    notes = [
+        f"Plain reduction {100 * red:.0f}% on average; the true poses themselves reach "
+        f"{100 * best:.0f}% (the real logs' scans disagree even on their corrected poses: moving "
+        "people, glass, the corrected log's own residual error)."
+    ]
     return "\n".join([*lines, "", *notes])
 
 
