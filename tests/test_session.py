@@ -783,7 +783,7 @@ def fakes(monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, bytes]]:
     monkeypatch.setitem(sys.modules, "hitl_slam.io.export", module)
     real_load = hitl_slam.io.maps.load_map
 
-    def load(path: Any, config: Config = DEFAULT) -> Map:
+    def load(path: Any, config: Config = DEFAULT, *, max_range: float | None = None) -> Map:
         return real_load(path) if str(path).endswith(".hitl") else tiny_map()
 
     monkeypatch.setattr(hitl_slam.io.maps, "load_map", load)
