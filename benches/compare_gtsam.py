@@ -525,8 +525,10 @@ def machine_description(pinning: Pinning | None) -> list[str]:
     os_name = os_release.get("PRETTY_NAME", platform.system()).strip('"')
     allowed = pinning.allowed if pinning else len(os.sched_getaffinity(0))
     pinned = f"; this run pinned to CPU {pinning.cpu}" if pinning else ""
+    load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
     return [
-        f"- CPU: {model}; {os.cpu_count()} logical CPUs, {allowed} allowed to this process{pinned}",
+        f"- CPU: {model}; {os.cpu_count()} logical CPUs, {allowed} allowed to this process{pinned}"
+        f"; load average at the start {load} (1, 5, 15 min)",
         f"- Memory: {mem_kib / 2**20:.1f} GiB",
         f"- OS: {os_name}, Linux {platform.release()}",
         (
