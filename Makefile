@@ -43,6 +43,8 @@ test: lint test-rust test-python
 # Long measurements; not part of `make test`.
 bench: setup
 	$(BIN)/python benches/compare_gtsam.py --write benches/README.md
+	$(BIN)/python benches/outliers.py --seeds 0 1 2 --write benches/README.md
+	$(BIN)/python benches/chains.py --write benches/README.md
 	/usr/bin/time -v $(BIN)/python benches/scale.py --write benches/README.md
 	cargo bench
 
