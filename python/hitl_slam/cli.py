@@ -597,7 +597,10 @@ def build_parser() -> argparse.ArgumentParser:
     solve = sub.add_parser(
         "solve",
         help="optimize a g2o / TORO pose graph",
-        description="Optimize a 2D pose graph with sparse Levenberg-Marquardt or Gauss-Newton.",
+        description=(
+            "Optimize a 2D pose graph (sparse Levenberg-Marquardt, Gauss-Newton or Powell's "
+            "dogleg), from its vertices or a computed start, optionally with robust kernels."
+        ),
         epilog=_SOLVE_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
