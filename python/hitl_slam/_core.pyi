@@ -147,6 +147,7 @@ class Graph:
         absolute_tolerance: float = 1e-6,
         lambda_initial: float = 1e-5,
         robust: list[tuple[str, str]] | None = None,
+        watchdog_steps: int = 3,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], SolveReport]: ...
     def add_between(
         self, i: int, j: int, measurement: NDArray[np.float64], information: NDArray[np.float64]

@@ -132,6 +132,11 @@ def solve_all(
         relative_tolerance=config.relative_tolerance,
         absolute_tolerance=config.absolute_tolerance,
         robust=robust_pairs(config.robust),
+        # The start is the explicit correction and its back-propagation: a trust region stays in
+        # its basin. The watchdog's Gauss-Newton jumps (for starts off by radians) found other,
+        # lower-cost basins here that fit the drawings worse (Freiburg 079 in the evaluation:
+        # mean angle error 1.75 -> 2.75 deg with it).
+        watchdog_steps=0,
     )
     return poses, solved_lines, report
 

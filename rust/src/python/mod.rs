@@ -499,7 +499,7 @@ impl PyGraph {
     /// is `(L, 2)` rows `(phi, rho)`.
     #[pyo3(signature = (
         poses, lines, *, method = "lm", max_iterations = 100, relative_tolerance = 1e-6,
-        absolute_tolerance = 1e-6, lambda_initial = 1e-5, robust = None
+        absolute_tolerance = 1e-6, lambda_initial = 1e-5, robust = None, watchdog_steps = 3
     ))]
     #[allow(clippy::too_many_arguments, clippy::type_complexity)]
     fn optimize_with_lines<'py>(
@@ -513,6 +513,7 @@ impl PyGraph {
         absolute_tolerance: f64,
         lambda_initial: f64,
         robust: Option<Vec<(String, String)>>,
+        watchdog_steps: usize,
     ) -> PyResult<(
         Bound<'py, PyArray2<f64>>,
         Bound<'py, PyArray2<f64>>,
@@ -527,6 +528,7 @@ impl PyGraph {
             absolute_tolerance,
             lambda_initial,
             robust,
+            watchdog_steps,
             ..SolverParams::default()
         };
         let l = lines.as_array();
