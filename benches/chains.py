@@ -530,15 +530,7 @@ def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="stack limit of the children (0: unlimited, -1: inherit); GTSAM's lago.initialize "
         "recurses along the chain and overflows the usual 8 MiB at 100k poses",
     )
-    parser.add_argument("--relative-tolerance", type=float, default=1e-6)
-    parser.add_argument("--absolute-tolerance", type=float, default=1e-6)
-    parser.add_argument("--max-iterations", type=int, default=100)
-    parser.add_argument(
-        "--prior-sigma",
-        type=float,
-        default=1e-6,
-        help="isotropic sigma of GTSAM's prior on the anchor pose",
-    )
+    shared.add_solver_arguments(parser)
     parser.add_argument(
         "--child",
         choices=tuple(CHILD_SOLVERS),

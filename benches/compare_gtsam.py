@@ -656,6 +656,29 @@ def section(
 # --- command line --------------------------------------------------------------------------------
 
 
+def add_solver_arguments(parser: argparse.ArgumentParser) -> None:
+    """The stopping rule and GTSAM's gauge, shared by every side-by-side script."""
+    parser.add_argument(
+        "--relative-tolerance",
+        type=float,
+        default=1e-6,
+        help="stop when chi2 decreases by a fraction less than this",
+    )
+    parser.add_argument(
+        "--absolute-tolerance",
+        type=float,
+        default=1e-6,
+        help="stop when chi2 decreases by less than this",
+    )
+    parser.add_argument("--max-iterations", type=int, default=100)
+    parser.add_argument(
+        "--prior-sigma",
+        type=float,
+        default=1e-6,
+        help="isotropic sigma of GTSAM's prior on the anchor pose",
+    )
+
+
 def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         description="Time hitl-slam's and GTSAM's Levenberg-Marquardt side by side on one core, "
@@ -680,25 +703,7 @@ def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the --synthetic graphs")
     parser.add_argument("--repeats", type=int, default=7, help="timed solves per solver and graph")
-    parser.add_argument(
-        "--relative-tolerance",
-        type=float,
-        default=1e-6,
-        help="stop when chi2 decreases by a fraction less than this",
-    )
-    parser.add_argument(
-        "--absolute-tolerance",
-        type=float,
-        default=1e-6,
-        help="stop when chi2 decreases by less than this",
-    )
-    parser.add_argument("--max-iterations", type=int, default=100)
-    parser.add_argument(
-        "--prior-sigma",
-        type=float,
-        default=1e-6,
-        help="isotropic sigma of GTSAM's prior on the anchor pose",
-    )
+    add_solver_arguments(parser)
     parser.add_argument(
         "--only",
         choices=("both", "hitl", "gtsam"),

@@ -399,15 +399,7 @@ def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--max-ratio", type=float, default=1.10, help="largest acceptable ATE / outlier-free ATE"
     )
-    parser.add_argument("--relative-tolerance", type=float, default=1e-6)
-    parser.add_argument("--absolute-tolerance", type=float, default=1e-6)
-    parser.add_argument("--max-iterations", type=int, default=100)
-    parser.add_argument(
-        "--prior-sigma",
-        type=float,
-        default=1e-6,
-        help="isotropic sigma of GTSAM's prior on the anchor pose",
-    )
+    shared.add_solver_arguments(parser)
     parser.add_argument(
         "--only", choices=("both", "hitl", "gtsam"), default="both", help="run one side only"
     )
