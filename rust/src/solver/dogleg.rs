@@ -7,7 +7,7 @@
 //! rejected step). The first radius is the first Gauss-Newton step's length unless given.
 
 use super::gauss_newton::max_iterations;
-use super::problem::{norm, Outcome, Problem};
+use super::problem::{norm, pose_scale, Outcome, Problem};
 use super::report::Termination;
 use crate::error::Result;
 use crate::values::Values;
@@ -126,13 +126,7 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
                 cost = p.linearize(values);
             }
             radius = radius.min(step_norm) * 0.5;
-            let scale = norm(
-                &values
-                    .poses
-                    .iter()
-                    .flat_map(|q| q.to_array())
-                    .collect::<Vec<_>>(),
-            );
+            let scale = pose_scale(values);
             if radius <= params.step_tolerance.max(1e-15) * (scale + 1.0) {
                 return Ok(Outcome::new(
                     Termination::Stalled,

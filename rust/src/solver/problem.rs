@@ -183,17 +183,8 @@ impl<'a> Problem<'a> {
         step_norm: f64,
         values: &Values,
     ) -> Option<Outcome> {
+        // (A cost below the error tolerance is caught by `converged_at_point` next.)
         let p = self.params;
-        if new <= p.error_tolerance {
-            return Some(Outcome::new(
-                Termination::FunctionTolerance,
-                format!(
-                    "cost {new:.6e} <= error tolerance {:.1e}",
-                    p.error_tolerance
-                ),
-                new,
-            ));
-        }
         let dec = (old - new).abs();
         if dec < p.absolute_tolerance {
             return Some(Outcome::new(
@@ -216,12 +207,7 @@ impl<'a> Problem<'a> {
                 new,
             ));
         }
-        let scale = values
-            .poses
-            .iter()
-            .map(|q| q.x * q.x + q.y * q.y + q.theta * q.theta)
-            .sum::<f64>()
-            .sqrt();
+        let scale = pose_scale(values);
         if step_norm <= p.step_tolerance * (scale + p.step_tolerance) {
             return Some(Outcome::new(
                 Termination::StepTolerance,
@@ -302,6 +288,16 @@ impl<'a> Problem<'a> {
         }
         Ok(found.map(|c| (x, c)))
     }
+}
+
+/// `|x|` over the poses, the scale of the step tolerance.
+pub(super) fn pose_scale(values: &Values) -> f64 {
+    values
+        .poses
+        .iter()
+        .map(|q| q.x * q.x + q.y * q.y + q.theta * q.theta)
+        .sum::<f64>()
+        .sqrt()
 }
 
 pub(super) fn norm(v: &[f64]) -> f64 {
