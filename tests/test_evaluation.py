@@ -38,8 +38,10 @@ def test_quick_evaluation_repairs_and_reports(tmp_path: Path) -> None:
     assert "**mean**" in table(results)
     assert "## Targets" in text
     for r in results:
-        assert r.inconsistency_truth < r.inconsistency_after  # the true poses score lowest
-        assert r.best_reduction > r.inconsistency_reduction
+        # The true poses score far below the damaged map; a repair comes close to them (it may
+        # even score slightly lower: the metric also sees the scans' own noise).
+        assert r.inconsistency_truth < 0.2 * r.inconsistency_before
+        assert r.achieved_fraction > 0.8
 
 
 def _result(

@@ -9,6 +9,7 @@ __all__ = [
     "EmFit",
     "Graph",
     "IterationRecord",
+    "Snap",
     "SolveReport",
     "__version__",
     "backpropagate",
@@ -189,6 +190,25 @@ class Graph:
     ]: ...
 
 @final
+class Snap:
+    """Where a drawn segment was snapped before EM: ``segment`` ``(2, 2)`` the drawn ends
+    projected onto the chosen line, ``moved`` how far each end moved, ``turn`` the angle
+    [rad], ``support`` the line's points, ``score`` and the best other line's ``runner_up``."""
+
+    @property
+    def segment(self) -> NDArray[np.float64]: ...
+    @property
+    def moved(self) -> tuple[float, float]: ...
+    @property
+    def turn(self) -> float: ...
+    @property
+    def support(self) -> int: ...
+    @property
+    def score(self) -> float: ...
+    @property
+    def runner_up(self) -> float: ...
+
+@final
 class EmFit:
     """EM's interpretation of one drawn segment (ALGORITHM.md §3). The line is
     ``n . p = rho`` with ``n = (cos phi, sin phi)``, phi in (-pi/2, pi/2]; ``extent`` is its
@@ -212,6 +232,8 @@ class EmFit:
     def converged(self) -> bool: ...
     @property
     def mixing(self) -> float: ...
+    @property
+    def snap(self) -> Snap | None: ...
     @property
     def num_inliers(self) -> int: ...
 
@@ -242,8 +264,15 @@ def em_fit_scans(
     tol_rad: float,
     tol_pi: float,
     max_iterations: int,
+    search_band: float | None = None,
+    closeness: float = 0.2,
+    pointing: float = 0.1,
+    min_support: int = 8,
 ) -> list[EmFit]:
-    """``em_fit`` on robot-frame ``points`` of a map (pose i owns ``offsets[i]:offsets[i+1]``)."""
+    """``em_fit`` on robot-frame ``points`` of a map (pose i owns ``offsets[i]:offsets[i+1]``).
+    With ``search_band`` [m], each segment is first snapped onto the best line of observations
+    near it (support against ``closeness``, the sideways offset, and the turn allowed by
+    ``pointing``, each end's noise) and EM starts there."""
 
 def segment_candidates(
     world_points: NDArray[np.float64],

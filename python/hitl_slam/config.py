@@ -25,6 +25,9 @@ class Config:
     k_theta_t |dt|)``.
 
     Interpretation (§3): ``sigma_h`` the human's pointing accuracy (default for library callers),
+    ``search_band * sigma_h`` how far from a drawn segment the wall it was meant for is searched
+    (0: EM starts at the drawn line, as the paper), ``drawing_sigma * sigma_h`` how far from that
+    wall a careful person's endpoints land (it weighs closeness against a line's support),
     candidate band ``r_c = candidate_band * sigma_h``, ``sigma_em`` sensor noise plus wall
     roughness, initial clutter mixing weight, EM stopping rule, ``min_points_per_pose`` (T_p),
     ``visit_gap`` (how far apart in pose index two runs of selected poses are separate visits).
@@ -51,6 +54,8 @@ class Config:
     # §3 interpretation
     sigma_h: float = 0.10  # [m]
     candidate_band: float = 3.0  # [sigma_h]
+    search_band: float = 5.0  # [sigma_h] 0 = no search
+    drawing_sigma: float = 2.0  # [sigma_h]
     sigma_em: float = 0.03  # [m]
     clutter_weight: float = 0.5  # [1] initial pi
     em_tolerance_m: float = 1e-4  # [m]
@@ -99,6 +104,8 @@ class Config:
         ):
             if getattr(self, name) <= 0:
                 raise InputError(f"config {name} must be > 0")
+        if self.search_band > 0 and self.drawing_sigma <= 0:
+            raise InputError("config drawing_sigma must be > 0 when search_band is > 0")
 
     def replace(self, **changes: Any) -> Config:
         """A copy with some constants changed (validated)."""

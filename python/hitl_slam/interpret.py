@@ -134,6 +134,95 @@ def _one_visit(sel: _Selection, gap: int, notes: list[str]) -> None:
     sel.keep_poses(visits[best])
 
 
+def _snap_note(sel: _Selection) -> str:
+    snap = sel.fit.snap
+    assert snap is not None
+    clear = (
+        "no other line near it"
+        if not math.isfinite(snap.runner_up)
+        else f"score {snap.score:.2f} against {snap.runner_up:.2f} for the next line"
+    )
+    return (
+        f"segment {sel.name}: the nearest dense line has {snap.support} points; the drawing was "
+        f"moved {snap.moved[0]:.2f} m and {snap.moved[1]:.2f} m onto it and turned "
+        f"{math.degrees(snap.turn):.1f} deg ({clear})"
+    )
+
+
+@dataclass(frozen=True)
+class _Visit:
+    """One run of a selection's poses (no gap over ``visit_gap``): one pass of the robot."""
+
+    poses: NDArray[np.int64]  # ascending
+    points: int
+    rms: float  # [m] RMS distance of its points to the drawn line
+
+    def score(self, sigma_c: float) -> float:
+        """The snapping score for a visit: support against the drawing's distance."""
+        return math.log(self.points) - self.rms**2 / (2.0 * sigma_c**2)
+
+    def before(self, other: _Visit) -> bool:
+        return bool(self.poses[-1] < other.poses[0])
+
+
+def _visits(sel: _Selection, map: Map, poses: NDArray[np.float64], gap: int) -> list[_Visit]:
+    owners = np.unique(sel.rows[:, 0])
+    starts = np.concatenate([[0], np.flatnonzero(np.diff(owners) > gap) + 1])
+    world = map.observed_points(sel.rows, poses)
+    p0, p1 = sel.drawn
+    d = p1 - p0
+    normal = np.array([-d[1], d[0]]) / float(np.hypot(*d))
+    dist = (world - p0) @ normal
+    out = []
+    for run in np.split(owners, starts[1:]):
+        mask = np.isin(sel.rows[:, 0], run)
+        out.append(_Visit(run, int(mask.sum()), float(np.sqrt(np.mean(dist[mask] ** 2)))))
+    return out
+
+
+def _joint_visits(
+    a: _Selection,
+    b: _Selection,
+    map: Map,
+    poses: NDArray[np.float64],
+    gap: int,
+    sigma_c: float,
+    notes: list[str],
+) -> bool:
+    """Chooses one visit per segment jointly: the pair of visits, one before the other in
+    time, with the best summed score (support against distance to each drawing). Two segments
+    on near copies of one wall, whose EM lines hold both copies, thus get the copy each was
+    drawn on; with three or more copies, each segment keeps the one under it. False (nothing
+    changed) when no two visits are apart in time; the caller then applies the single-segment
+    rules and their refusals."""
+    va, vb = _visits(a, map, poses, gap), _visits(b, map, poses, gap)
+    best: tuple[float, _Visit, _Visit] | None = None
+    for x in va:
+        for y in vb:
+            if not (x.before(y) or y.before(x)):
+                continue
+            total = x.score(sigma_c) + y.score(sigma_c)
+            if best is None or total > best[0]:
+                best = (total, x, y)
+    if best is None:
+        return False
+    _, x, y = best
+    for sel, visits, kept in ((a, va, x), (b, vb, y)):
+        if len(visits) > 1:
+            dropped = ", ".join(
+                f"poses {_span(v.poses)} ({v.points} points, {v.rms:.2f} m)"
+                for v in visits
+                if v is not kept
+            )
+            notes.append(
+                f"segment {sel.name} covers {len(visits)} visits; kept poses "
+                f"{_span(kept.poses)} ({kept.points} points, {kept.rms:.2f} m from the "
+                f"drawing), dropped {dropped}"
+            )
+        sel.keep_poses(kept.poses)
+    return True
+
+
 def _refit(
     sel: _Selection, map: Map, poses: NDArray[np.float64], band: float
 ) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -189,6 +278,8 @@ def interpret(
     if not band > 0:
         raise InputError("config candidate_band must be > 0 (the band r_c would be empty)")
 
+    search = config.search_band * sigma_h
+    t_p = config.min_points_per_pose
     fit_a, fit_b = _core.em_fit_scans(
         poses,
         map.points,
@@ -201,11 +292,15 @@ def interpret(
         tol_rad=config.em_tolerance_rad,
         tol_pi=TOLERANCE_MIXING,
         max_iterations=config.em_max_iterations,
+        search_band=search if search > 0 else None,
+        closeness=config.drawing_sigma * sigma_h,
+        pointing=sigma_h,
+        min_support=t_p,
     )
-    t_p = config.min_points_per_pose
     a = _select("a", seg_a, fit_a, map.offsets, t_p)
     b = _select("b", seg_b, fit_b, map.offsets, t_p)
-    notes = [
+    notes = [_snap_note(s) for s in (a, b) if s.fit.snap is not None]
+    notes += [
         f"segment {s.name}: EM {'converged' if s.fit.converged else 'stopped'} after "
         f"{s.fit.iterations} iterations, {s.fit.num_inliers} of {s.fit.candidates.size} "
         f"candidates on the line, {s.rows.shape[0]} from {s.poses.size} poses with >= {t_p} "
@@ -221,14 +316,20 @@ def interpret(
         raise CorrectionRejected(
             f"no observations under segment{plural} {which}; draw along a wall ({details})"
         )
-    if np.array_equal(a.rows, b.rows):
-        raise CorrectionRejected(
-            f"segments a and b select the same observations ({a.rows.shape[0]} points from "
-            f"poses {_span(a.poses)}); draw each segment on a different copy of the feature"
-        )
-
-    for s in (a, b):
-        _one_visit(s, visit_gap, notes)
+    sigma_c = config.drawing_sigma * sigma_h
+    # One segment drawn twice points at one copy, whatever the visits under it.
+    same_drawing = np.allclose(seg_a, seg_b, rtol=0, atol=1e-9) or np.allclose(
+        seg_a, seg_b[::-1], rtol=0, atol=1e-9
+    )
+    if same_drawing or not _joint_visits(a, b, map, poses, visit_gap, sigma_c, notes):
+        if np.array_equal(a.rows, b.rows):
+            raise CorrectionRejected(
+                f"segments a and b select the same observations ({a.rows.shape[0]} points "
+                f"from poses {_span(a.poses)}); draw each segment on a different copy of the "
+                "feature"
+            )
+        for s in (a, b):
+            _one_visit(s, visit_gap, notes)
 
     xa, xb = a.poses, b.poses
     common = np.intersect1d(xa, xb)

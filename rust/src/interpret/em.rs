@@ -15,6 +15,7 @@
 //! `n . q = r`: world coordinates can be large (UTM), and `rho` near zero keeps full precision.
 
 use super::grid::GridIndex;
+use super::snap::{snap, Snap, SnapParams};
 use super::{
     canonical_normal, dot, sub, tangent, world_points_near, Point, Points, Segment, SegmentFrame,
 };
@@ -115,6 +116,9 @@ pub struct EmFit {
     pub mixing: f64,
     /// Candidates with `w_k > 0.5`.
     pub num_inliers: usize,
+    /// The line the drawn segment was snapped to before EM (`em_fit_scans` with a search), and
+    /// EM ran from there; `None` when EM started at the drawn line.
+    pub snap: Option<Snap>,
 }
 
 /// The model's constants, precomputed once per run.
@@ -326,6 +330,7 @@ pub fn em_fit(
         converged,
         mixing: model.mixing,
         num_inliers,
+        snap: None,
     })
 }
 
@@ -357,21 +362,38 @@ pub fn em_fit_segments(
 /// map rows. Only the scans that can reach the segments are transformed and indexed
 /// ([`world_points_near`]): the same candidates, in the same order, as over the whole map, so
 /// the fits are identical, while a drawing on a map of millions of points costs a few scans.
+///
+/// With `search`, each segment is first snapped onto the best line near it ([`snap`]) and EM
+/// starts from the snapped segment (its band around the snapped segment); a segment with no
+/// line near it keeps EM at the drawn line.
 pub fn em_fit_scans(
     poses: &[f64],
     points: Points<'_>,
     offsets: &[i64],
     segments: &[Segment],
     params: &EmParams,
+    search: Option<&SnapParams>,
 ) -> Result<Vec<EmFit>> {
     check_inputs(segments, params)?;
-    let (world, rows) = world_points_near(poses, points, offsets, segments, params.band)?;
+    if let Some(s) = search {
+        s.validate()?;
+    }
+    // A snapped segment lies within the search band of the drawn one, and its candidates
+    // within the band of it.
+    let reach = params.band + search.map_or(0.0, |s| s.search_band);
+    let (world, rows) = world_points_near(poses, points, offsets, segments, reach)?;
     let world_pts = Points::new(&world.flat)?;
     let grid = GridIndex::build_in(world_pts, params.band, world.bounds)?;
     segments
         .iter()
         .map(|seg| {
-            let mut fit = em_fit(world_pts, &grid, seg, params)?;
+            let snapped = match search {
+                Some(s) => snap(world_pts, &grid, seg, s)?,
+                None => None,
+            };
+            let start = snapped.map_or(*seg, |s| s.segment);
+            let mut fit = em_fit(world_pts, &grid, &start, params)?;
+            fit.snap = snapped;
             // Kept rows ascend, so the candidates stay in ascending order.
             for c in &mut fit.candidates {
                 *c = rows.get(*c).copied().ok_or_else(|| {
@@ -677,7 +699,7 @@ mod tests {
             Segment::new([1.0, 0.0], [5.0, 0.1]),
         ];
         let p = Points::new(&pts).unwrap();
-        let culled = em_fit_scans(&poses, p, &offsets, &segs, &params()).unwrap();
+        let culled = em_fit_scans(&poses, p, &offsets, &segs, &params(), None).unwrap();
         let world = super::super::world_points(&poses, p, &offsets).unwrap();
         let whole = em_fit_segments(Points::new(&world.flat).unwrap(), &segs, &params()).unwrap();
         assert_eq!(culled, whole);
@@ -701,6 +723,7 @@ mod tests {
             &offsets,
             &segs,
             &params(),
+            None,
         );
         assert!(err.unwrap_err().to_string().contains("not finite"));
     }

@@ -10,12 +10,14 @@
 
 mod em;
 mod grid;
+mod snap;
 
 pub use em::{
     em_fit, em_fit_scans, em_fit_segments, line_fit, log_likelihood, responsibilities, EmFit,
     EmParams, LineFit, MAX_MIXING, MIN_MIXING,
 };
 pub use grid::{candidates, candidates_brute_force, GridIndex};
+pub use snap::{snap, Snap, SnapParams};
 
 use crate::error::{HitlError, Result};
 

@@ -12,7 +12,7 @@ use pyo3::prelude::*;
 
 use super::{flat_rows, guarded, input_err, to_py};
 use crate::error::HitlError;
-use crate::interpret::{self, EmFit, EmParams, LineFit, Points, Segment};
+use crate::interpret::{self, EmFit, EmParams, LineFit, Points, Segment, Snap, SnapParams};
 
 /// The rows of an `(n, cols)` array as one flat slice: borrowed when the array is
 /// C-contiguous (the usual case), copied in logical order otherwise.
@@ -63,12 +63,69 @@ pub struct PyEmFit {
     /// Final mixing weight pi.
     mixing: f64,
     num_inliers: usize,
+    /// The line the drawn segment was snapped to before EM, or None (EM from the drawn line).
+    snap: Option<Py<PySnap>>,
+}
+
+/// Where a drawn segment was snapped before EM (`em_fit_scans` with `search_band`).
+#[pyclass(module = "hitl_slam._core", name = "Snap", frozen, get_all)]
+pub struct PySnap {
+    /// `(2, 2)` the drawn endpoints projected onto the chosen line, in the drawn order.
+    segment: Py<PyArray2<f64>>,
+    /// Distances the two endpoints moved (metres).
+    moved: (f64, f64),
+    /// Angle between the drawing and the line (radians).
+    turn: f64,
+    /// Observations within 1.5 sigma_em of the line.
+    support: usize,
+    score: f64,
+    /// Best score of a line more than 3 sigma_em away (-inf when none): how clear the choice was.
+    runner_up: f64,
+}
+
+impl PySnap {
+    fn new(py: Python<'_>, s: &Snap) -> PyResult<Py<Self>> {
+        let seg = Array2::from_shape_vec(
+            (2, 2),
+            vec![
+                s.segment.a[0],
+                s.segment.a[1],
+                s.segment.b[0],
+                s.segment.b[1],
+            ],
+        )
+        .unwrap_or_else(|_| Array2::zeros((2, 2)))
+        .into_pyarray(py)
+        .unbind();
+        Py::new(
+            py,
+            Self {
+                segment: seg,
+                moved: (s.moved[0], s.moved[1]),
+                turn: s.turn,
+                support: s.support,
+                score: s.score,
+                runner_up: s.runner_up,
+            },
+        )
+    }
+}
+
+#[pymethods]
+impl PySnap {
+    fn __repr__(&self) -> String {
+        format!(
+            "Snap(moved=({:.3}, {:.3}), turn={:.4}, support={}, score={:.2}, runner_up={:.2})",
+            self.moved.0, self.moved.1, self.turn, self.support, self.score, self.runner_up
+        )
+    }
 }
 
 impl PyEmFit {
-    fn new(py: Python<'_>, fit: EmFit) -> Self {
+    fn new(py: Python<'_>, fit: EmFit) -> PyResult<Self> {
         let candidates: Vec<i64> = fit.candidates.iter().map(|&i| i as i64).collect();
-        Self {
+        let snap = fit.snap.as_ref().map(|s| PySnap::new(py, s)).transpose()?;
+        Ok(Self {
             candidates: Array1::from_vec(candidates).into_pyarray(py).unbind(),
             extent: extent_out(py, &fit.line),
             weights: Array1::from_vec(fit.weights).into_pyarray(py).unbind(),
@@ -79,7 +136,8 @@ impl PyEmFit {
             converged: fit.converged,
             mixing: fit.mixing,
             num_inliers: fit.num_inliers,
-        }
+            snap,
+        })
     }
 }
 
@@ -137,16 +195,19 @@ fn em_fit(
             })
         })
         .map_err(|e| to_py(py, e))?;
-    Ok(fits.into_iter().map(|f| PyEmFit::new(py, f)).collect())
+    fits.into_iter().map(|f| PyEmFit::new(py, f)).collect()
 }
 
 /// `em_fit` on a map as stored: `poses` `(N, 3)`, robot-frame `points` `(P, 2)` and `offsets`
 /// `(N + 1,)` (pose i owns rows `offsets[i]:offsets[i + 1]`). The world points are computed
 /// here, in the same pass as their bounds, instead of in numpy (several times faster).
+/// With `search_band` (metres), each segment is first snapped onto the best-scoring line of
+/// observations within that distance (`closeness`: how far beside a wall a person draws,
+/// `pointing`: each endpoint's noise, `min_support` points make a line) and EM starts there.
 #[pyfunction]
 #[pyo3(signature = (
     poses, points, offsets, segments, *, band, sigma_em, pi0, tol_m, tol_rad, tol_pi,
-    max_iterations
+    max_iterations, search_band = None, closeness = 0.2, pointing = 0.1, min_support = 8
 ))]
 #[allow(clippy::too_many_arguments)]
 fn em_fit_scans(
@@ -162,6 +223,10 @@ fn em_fit_scans(
     tol_rad: f64,
     tol_pi: f64,
     max_iterations: usize,
+    search_band: Option<f64>,
+    closeness: f64,
+    pointing: f64,
+    min_support: usize,
 ) -> PyResult<Vec<PyEmFit>> {
     let params = EmParams {
         band,
@@ -172,6 +237,13 @@ fn em_fit_scans(
         tol_pi,
         max_iterations,
     };
+    let search = search_band.map(|search_band| SnapParams {
+        search_band,
+        sigma: sigma_em,
+        closeness,
+        pointing,
+        min_support,
+    });
     let (poses, pts, offsets, segs) = (
         poses.as_array(),
         points.as_array(),
@@ -188,11 +260,18 @@ fn em_fit_scans(
                     Some(s) => Cow::Borrowed(s),
                     None => Cow::Owned(offsets.iter().copied().collect()),
                 };
-                interpret::em_fit_scans(&poses, Points::new(&pts)?, &offsets, &segs, &params)
+                interpret::em_fit_scans(
+                    &poses,
+                    Points::new(&pts)?,
+                    &offsets,
+                    &segs,
+                    &params,
+                    search.as_ref(),
+                )
             })
         })
         .map_err(|e| to_py(py, e))?;
-    Ok(fits.into_iter().map(|f| PyEmFit::new(py, f)).collect())
+    fits.into_iter().map(|f| PyEmFit::new(py, f)).collect()
 }
 
 /// `(K,)` int64 indices (ascending) of the `world_points` within distance `band` of `segment`
@@ -254,6 +333,7 @@ fn line_fit<'py>(
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyEmFit>()?;
+    m.add_class::<PySnap>()?;
     m.add_function(wrap_pyfunction!(em_fit, m)?)?;
     m.add_function(wrap_pyfunction!(em_fit_scans, m)?)?;
     m.add_function(wrap_pyfunction!(segment_candidates, m)?)?;
