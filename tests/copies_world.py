@@ -40,6 +40,7 @@ class CopiesWorld:
     map: Map
     laps: list[NDArray[np.int64]]  # pose indices of each lap's corridor pass
     errors: list[tuple[float, float, float]]
+    parts: list[NDArray[np.int64]]  # each lap's poses with the excursion after it
 
     def copy_of(
         self, wall: tuple[tuple[float, float], tuple[float, float]], lap: int
@@ -49,8 +50,8 @@ class CopiesWorld:
 
     def lap_of(self, poses: NDArray[np.int64]) -> NDArray[np.int64]:
         out = np.full(len(poses), -1)
-        for k, lap in enumerate(self.laps):
-            out[np.isin(poses, lap)] = k
+        for k, part in enumerate(self.parts):
+            out[np.isin(poses, part)] = k
         return out
 
 
@@ -76,25 +77,38 @@ def _observe(pose: FloatArray, rng: np.random.Generator) -> FloatArray:
 def copies_world(
     errors: list[tuple[float, float, float]], seed: int = 0, n: int = 50
 ) -> CopiesWorld:
-    """One corridor pass of `n` poses per lap (alternating directions), an excursion of 20 poses
-    past WALL_FAR between laps; lap k's poses (and the excursion after it) carry errors[k]."""
+    """One corridor pass of `n` poses per lap (alternating directions), then 20 poses out to
+    WALL_FAR and back, in 2-3 m steps (odometry as weak as a long drive, not a teleport). Lap
+    k's error applies from the far point before its pass to the far point after it, so each
+    copy changes where no wall is seen."""
     rng = np.random.default_rng(seed)
-    true_parts, est_parts, laps = [], [], []
+    true_parts, est_parts, laps, parts = [], [], [], []
     count = 0
+    far = np.array([46.0, 31.5])
+    t_out, t_back = np.linspace(0.0, 1.0, 11)[1:], np.linspace(1.0, 0.0, 11)[1:]
     for k, err in enumerate(errors):
         xs = np.linspace(1.0, 13.0, n)
         heading = 0.0 if k % 2 == 0 else math.pi
         if k % 2:
             xs = xs[::-1]
         lap = np.stack([xs, np.full(n, 1.5), np.full(n, heading)], axis=1)
-        exc = np.stack([np.linspace(42.0, 50.0, 20), np.full(20, 31.5), np.zeros(20)], axis=1)
-        part = np.concatenate([lap, exc])
+        pieces = []
+        if k > 0:  # back from the far point to where this pass starts
+            back = lap[0, :2] + t_back[:, None] * (far - lap[0, :2])
+            pieces.append(np.concatenate([back, np.full((10, 1), heading)], axis=1))
+        first = count + sum(len(p) for p in pieces)
+        pieces.append(lap)
+        if k < len(errors) - 1:  # out to the far point
+            out = lap[-1, :2] + t_out[:, None] * (far - lap[-1, :2])
+            pieces.append(np.concatenate([out, np.full((10, 1), heading)], axis=1))
+        part = np.concatenate(pieces)
         est = part.copy()
         est[:, :2] = apply_error(err, part[:, :2])
         est[:, 2] += err[2]
         true_parts.append(part)
         est_parts.append(est)
-        laps.append(np.arange(count, count + n))
+        laps.append(np.arange(first, first + n))
+        parts.append(np.arange(count, count + len(part)))
         count += len(part)
     true = np.concatenate(true_parts)
     scans = []
@@ -104,7 +118,7 @@ def copies_world(
         q = world - pose[:2]
         scans.append(np.stack([c * q[:, 0] + s * q[:, 1], -s * q[:, 0] + c * q[:, 1]], axis=1))
     m = Map.from_poses_and_scans(np.concatenate(est_parts), scans)
-    return CopiesWorld(m, laps, list(errors))
+    return CopiesWorld(m, laps, list(errors), parts)
 
 
 def _line_distance(copy: FloatArray, p: FloatArray) -> float:

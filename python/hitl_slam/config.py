@@ -75,6 +75,10 @@ class Config:
     # robust kernels in the joint solve, per edge class ("" for none), e.g. "odometry=cauchy:1"
     # (hitl_slam.solve.robust_pairs)
     robust: str = ""
+    # colocation guard: the chi2 of the map's own measurements a colocation may cost above the
+    # same correction solved as collinear before it is applied as collinear (0 = off; 3.84 is
+    # chi2 with one degree of freedom at 95%: the along-the-wall part is one constraint)
+    colocation_guard: float = 3.84
     # §6 metric / occupancy export
     grid_resolution: float = 0.05  # [m]
     # §6 inconsistency metric: its robustness rules (without them a perfect map scores 100s m^2)

@@ -7,6 +7,8 @@ Inputs are never modified; a drawing that cannot be interpreted raises Correctio
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -16,7 +18,7 @@ from numpy.typing import NDArray
 
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.corrections import DrawnCorrection, Interpretation
+from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.map import Map, motion_model_information, to_world
 from hitl_slam.solve import robust_pairs
 
@@ -30,6 +32,8 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
+
+logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -159,6 +163,34 @@ def explicit_and_backpropagate(
     return moved, transform
 
 
+def _graph_chi2(map: Map, poses: FloatArray) -> float:
+    """chi2 of the map's relative-pose factors alone (the robot's measurements) at ``poses``."""
+    engine = _core.Graph(poses.shape[0], map.edges, map.measurements, map.information, map.anchor)
+    return float(engine.chi2(np.ascontiguousarray(poses, dtype=np.float64)))
+
+
+def _stretch(map: Map, poses: FloatArray, rows: NDArray[np.int64]) -> float:
+    """[m] Length of the stretch of wall the observations ``rows`` cover: the 2nd to 98th
+    percentile of their positions along their own line."""
+    world = map.observed_points(rows, poses)
+    phi, _ = fit_line(world)
+    along = world @ np.array([-np.sin(phi), np.cos(phi)])
+    lo, hi = np.percentile(along, [2.0, 98.0])
+    return float(hi - lo)
+
+
+def _correct(
+    map: Map,
+    current: FloatArray,
+    h: Interpretation,
+    active: Sequence[Interpretation],
+    config: Config,
+) -> tuple[FloatArray, FloatArray, FloatArray, _core.SolveReport]:
+    moved, transform = explicit_and_backpropagate(map, current, h)
+    new_poses, lines, report = solve_all(map, [*active, h], config, moved)
+    return new_poses, lines, transform, report
+
+
 def apply_correction(
     map: Map,
     poses: FloatArray,
@@ -168,15 +200,51 @@ def apply_correction(
 ) -> CorrectionResult:
     """Interpret ``drawn`` on the map as displayed (``poses``), correct, and re-solve with every
     correction in ``active`` plus the new one. Raises CorrectionRejected when the drawing
-    cannot be interpreted; nothing is modified either way."""
+    cannot be interpreted; nothing is modified either way.
+
+    The colocation guard (``config.colocation_guard``, in chi2 units; 0 = off): a colocation
+    says more than "same line": that the two observation sets are the same stretch of it (their
+    centres coincide). When the two passes saw different stretches of a wall (the usual case on
+    a long wall), that along-the-wall part is false, and forcing it bends the map elsewhere. So
+    a colocation whose two observation sets differ in length by more than 10% (plus
+    ``2 sigma_h``) is applied as collinear; otherwise it is also solved as collinear, and if the
+    colocation costs the robot's own measurements (the map's relative-pose factors) more than
+    ``colocation_guard`` above the collinear solution's chi2, the along-the-wall part
+    contradicts them and the collinear solution is applied instead. Either way a note in the
+    interpretation gives the figures."""
     from hitl_slam.interpret import interpret
 
     t0 = time.perf_counter()
     current = np.ascontiguousarray(poses, dtype=np.float64)
     h = interpret(map, current, drawn, config)
     t1 = time.perf_counter()
-    moved, transform = explicit_and_backpropagate(map, current, h)
-    new_poses, lines, report = solve_all(map, [*active, h], config, moved)
+    if h.mode is Mode.COLOCATION and config.colocation_guard > 0:
+        len_a, len_b = _stretch(map, current, h.s_a), _stretch(map, current, h.s_b)
+        tolerance = 0.1 * max(len_a, len_b) + 2.0 * config.sigma_h
+        if abs(len_a - len_b) > tolerance:
+            note = (
+                f"applied as collinear: the two passes saw different stretches of the wall "
+                f"({len_a:.2f} m and {len_b:.2f} m long), so their centres are not one place"
+            )
+            logger.info("correction: %s", note)
+            h = dataclasses.replace(h, mode=Mode.COLLINEAR, notes=(*h.notes, note))
+    new_poses, lines, transform, report = _correct(map, current, h, active, config)
+    if h.mode is Mode.COLOCATION and config.colocation_guard > 0:
+        alt = dataclasses.replace(h, mode=Mode.COLLINEAR)
+        alt_poses, alt_lines, alt_transform, alt_report = _correct(
+            map, current, alt, active, config
+        )
+        cost, alt_cost = _graph_chi2(map, new_poses), _graph_chi2(map, alt_poses)
+        logger.debug("colocation guard: chi2 %.2f as colocation, %.2f as collinear", cost, alt_cost)
+        if cost - alt_cost > config.colocation_guard:
+            note = (
+                f"applied as collinear: the two passes' positions along the wall contradict the "
+                f"odometry (chi2 of the map's measurements {cost:.1f} as colocation, "
+                f"{alt_cost:.1f} as collinear; guard {config.colocation_guard:g})"
+            )
+            logger.info("correction: %s", note)
+            h = dataclasses.replace(alt, notes=(*alt.notes, note))
+            new_poses, lines, transform, report = alt_poses, alt_lines, alt_transform, alt_report
     t2 = time.perf_counter()
     return CorrectionResult(
         poses=new_poses,

@@ -1,0 +1,86 @@
+"""Issue 11's application failure classes: true statements that made maps worse.
+
+- A loop with one 12-degree heading jump, repaired one drawing at a time by a person who says
+  "same wall" (colocation) over the copies they see: the passes saw different stretches of the
+  walls, so the centres of their observations are not one place, and forcing them together bent
+  the room into a spiral (ATE 0.2 -> 1-2 m, wall angles 35-53 deg, before the guard).
+- A long colocation of two diverging copies of a wall (5 degrees apart) seen over different
+  stretches: it must end with the copies on one line and the rest of the map straight.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from copies_world import WALL_A, careful_drawing, copies_world
+from hitl_slam.config import DEFAULT
+from hitl_slam.corrections import DrawnCorrection, Mode
+from hitl_slam.errors import CorrectionRejected
+from hitl_slam.evaluation import _ate
+from hitl_slam.pipeline import apply_correction
+from hitl_slam.session import Session
+from hitl_slam.sim.human import SimulatedHuman
+from hitl_slam.sim.scenario import single_room
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_heading_jump_loop_repaired_by_colocations_never_gets_worse(seed: int) -> None:
+    sc = single_room(seed, heading_jump_deg=12.0, laps=2.0)
+    person = SimulatedHuman(
+        sc,
+        seed,
+        check_selection=False,
+        same_wall_mode=Mode.COLOCATION,
+        min_sigma_h=0.1,
+        endpoint_noise=0.05,
+    )
+    ate = [_ate(sc.map.poses, sc.truth)]
+    angle = [sc.errors(sc.map.poses).mean_angular]
+    with Session.new(sc.map) as session:
+        for _ in range(6):
+            drawn = person.next_correction(session.poses)
+            if drawn is None:
+                break
+            try:
+                session.apply(drawn)
+            except CorrectionRejected:
+                person.rejected(drawn)
+                continue
+            ate.append(_ate(session.poses, sc.truth))
+            angle.append(sc.errors(session.poses).mean_angular)
+    assert len(ate) >= 3, "the person found fewer than two corrections to make"
+    # Each step: never much worse (a few cm / tenths of a degree of slack for noise-level maps).
+    for k in range(1, len(ate)):
+        assert ate[k] <= 1.05 * ate[k - 1] + 0.02, ate
+        assert angle[k] <= 1.05 * angle[k - 1] + 0.3, angle
+    assert ate[-1] < 0.5 * ate[0], ate
+    assert angle[-1] < 0.5, angle
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_long_colocation_of_diverging_copies_ends_on_one_line(seed: int) -> None:
+    # Lap 1 turned 5 degrees: the copies diverge from ~0 to ~0.6 m over the 14 m wall; the
+    # person draws "same wall" over the first 20-75% of copy a and the 35-95% of copy b.
+    rng = np.random.default_rng(500 + seed)
+    w = copies_world([(0.0, 0.0, 0.0), (0.0, 0.1, math.radians(5.0))], seed)
+    c0, c1 = w.copy_of(WALL_A, 0), w.copy_of(WALL_A, 1)
+    a = careful_drawing(c0, rng, offset=(0.0, 0.05), span=(0.1, 0.6))
+    b = careful_drawing(c1, rng, offset=(0.0, 0.05), span=(0.35, 0.95))
+    drawn = DrawnCorrection.make(a, b, Mode.COLOCATION)
+    result = apply_correction(w.map, w.map.poses, drawn, (), DEFAULT)
+    assert any("applied as collinear" in n for n in result.interpretation.notes)
+    # Each lap's corridor pass was driven straight and stays nearly so. (Not yet exactly: the
+    # Gaussian odometry spreads the 5 degrees over every edge between the passes, up to 1 deg
+    # within a pass here; putting it on the edges where it happened is issue 11's open point 3.)
+    for lap in w.laps:
+        before = w.map.poses[lap]
+        after = result.poses[lap]
+        turn = np.angle(np.exp(1j * (after[:, 2] - before[:, 2])))
+        assert np.ptp(turn) < math.radians(1.2)
+    # The copies end on one line: lap 1's wall direction within 0.3 deg of lap 0's.
+    lap1 = w.laps[1]
+    d = np.angle(np.exp(1j * (result.poses[lap1, 2] - w.map.poses[lap1, 2] + math.radians(5.0))))
+    assert np.abs(d).max() < math.radians(0.3)
