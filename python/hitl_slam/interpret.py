@@ -5,6 +5,7 @@ per segment, no shared poses, time order) turn them into ``h = <P_a, P_b, S_a, S
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -223,6 +224,50 @@ def _joint_visits(
     return True
 
 
+def _pair_rules(
+    a: _Selection, b: _Selection, visit_gap: int, notes: list[str]
+) -> tuple[_Selection, _Selection, NDArray[np.int64], NDArray[np.int64], bool]:
+    """The design's pair rules (§3): refuse one set selected twice; keep one visit per segment
+    (the one with most points); drop poses that see both; order the pair in time."""
+    if np.array_equal(a.rows, b.rows):
+        raise CorrectionRejected(
+            f"segments a and b select the same observations ({a.rows.shape[0]} points "
+            f"from poses {_span(a.poses)}); draw each segment on a different copy of the "
+            "feature"
+        )
+    for s in (a, b):
+        _one_visit(s, visit_gap, notes)
+    xa, xb = a.poses, b.poses
+    common = np.intersect1d(xa, xb)
+    if common.size:
+        if common.size in (xa.size, xb.size):
+            inner = a if common.size == xa.size else b
+            other = b if inner is a else a
+            raise CorrectionRejected(
+                f"segments a and b are seen from the same visit: every pose that sees segment "
+                f"{inner.name} (poses {_span(inner.poses)}) also sees segment {other.name} "
+                f"(poses {_span(other.poses)}), so one cannot be moved relative to the other; "
+                "draw the two segments on copies of the feature seen at different times"
+            )
+        a.keep_poses(np.setdiff1d(xa, common))
+        b.keep_poses(np.setdiff1d(xb, common))
+        notes.append(f"removed {common.size} poses seen by both segments ({_span(common)})")
+        xa, xb = a.poses, b.poses
+    swapped = False
+    if xa[-1] < xb[0]:
+        pass
+    elif xb[-1] < xa[0]:
+        a, b, xa, xb, swapped = b, a, xb, xa, True
+        notes.append("swapped a and b: the segment drawn second was observed first")
+    else:
+        raise CorrectionRejected(
+            f"the observations interleave in time: segment a is seen from poses {_span(xa)}, "
+            f"segment b from poses {_span(xb)}; draw each segment where the map shows one "
+            "pass of the robot"
+        )
+    return a, b, xa, xb, swapped
+
+
 def _refit(
     sel: _Selection, map: Map, poses: NDArray[np.float64], band: float
 ) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -321,45 +366,18 @@ def interpret(
     same_drawing = np.allclose(seg_a, seg_b, rtol=0, atol=1e-9) or np.allclose(
         seg_a, seg_b[::-1], rtol=0, atol=1e-9
     )
-    if same_drawing or not _joint_visits(a, b, map, poses, visit_gap, sigma_c, notes):
-        if np.array_equal(a.rows, b.rows):
-            raise CorrectionRejected(
-                f"segments a and b select the same observations ({a.rows.shape[0]} points "
-                f"from poses {_span(a.poses)}); draw each segment on a different copy of the "
-                "feature"
-            )
-        for s in (a, b):
-            _one_visit(s, visit_gap, notes)
-
-    xa, xb = a.poses, b.poses
-    common = np.intersect1d(xa, xb)
-    if common.size:
-        if common.size in (xa.size, xb.size):
-            inner = a if common.size == xa.size else b
-            other = b if inner is a else a
-            raise CorrectionRejected(
-                f"segments a and b are seen from the same visit: every pose that sees segment "
-                f"{inner.name} (poses {_span(inner.poses)}) also sees segment {other.name} "
-                f"(poses {_span(other.poses)}), so one cannot be moved relative to the other; "
-                "draw the two segments on copies of the feature seen at different times"
-            )
-        a.keep_poses(np.setdiff1d(xa, common))
-        b.keep_poses(np.setdiff1d(xb, common))
-        notes.append(f"removed {common.size} poses seen by both segments ({_span(common)})")
-        xa, xb = a.poses, b.poses
-
-    swapped = False
-    if xa[-1] < xb[0]:
-        pass
-    elif xb[-1] < xa[0]:
-        a, b, xa, xb, swapped = b, a, xb, xa, True
-        notes.append("swapped a and b: the segment drawn second was observed first")
-    else:
-        raise CorrectionRejected(
-            f"the observations interleave in time: segment a is seen from poses {_span(xa)}, "
-            f"segment b from poses {_span(xb)}; draw each segment where the map shows one "
-            "pass of the robot"
-        )
+    # The design's pair rules first (each segment's biggest visit); only where they refuse
+    # (near copies in one EM line, a segment over several passes) are the visits chosen
+    # jointly, which keeps every drawing the rules accept exactly as before.
+    trial = list(notes)
+    try:
+        a2, b2 = dataclasses.replace(a), dataclasses.replace(b)
+        a, b, xa, xb, swapped = _pair_rules(a2, b2, visit_gap, trial)
+        notes = trial
+    except CorrectionRejected:
+        if same_drawing or not _joint_visits(a, b, map, poses, visit_gap, sigma_c, notes):
+            raise
+        a, b, xa, xb, swapped = _pair_rules(a, b, visit_gap, notes)
 
     for note in notes:
         logger.debug("interpret: %s", note)
