@@ -190,7 +190,7 @@ fn e_step(local: &[Point], model: &Model, dens: &Densities, w: &mut Vec<f64>) ->
 /// the principal axis of the weighted scatter, in closed form for 2x2. The normal is oriented
 /// like `prev`, which is also used when the scatter has no principal direction (one point, or
 /// an isotropic cloud). None when the weights carry no mass.
-fn weighted_fit(local: &[Point], w: &[f64], prev: Point) -> Option<(Point, f64)> {
+pub(super) fn weighted_fit(local: &[Point], w: &[f64], prev: Point) -> Option<(Point, f64)> {
     // Scaling by the largest weight keeps tiny responsibilities (a drawing far from its wall)
     // away from subnormal numbers; the fit depends only on relative weights.
     let w_max = w.iter().copied().fold(0.0_f64, f64::max);

@@ -25,6 +25,7 @@
 //! Two copies a few centimetres apart fall in one histogram peak; telling them apart is the pair
 //! rules' job (distinct visits, chosen jointly for both segments).
 
+use super::em::weighted_fit;
 use super::grid::GridIndex;
 use super::{dot, sub, Point, Points, Segment, SegmentFrame};
 use crate::error::{HitlError, Result};
@@ -206,39 +207,21 @@ pub fn snap(
 /// with Cauchy weights at scale `sigma` over those within `3 sigma`: the histogram's line is
 /// only as good as its bins and directions; this puts it on its points.
 fn refine(local: &[Point], mut n: Point, mut r: f64, sigma: f64) -> (Point, f64) {
+    let mut w = vec![0.0; local.len()];
     for _ in 0..5 {
-        let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
-        let mut near: Vec<(Point, f64)> = Vec::new();
-        for &q in local {
+        for (wk, &q) in w.iter_mut().zip(local) {
             let d = (dot(n, q) - r) / sigma;
-            if d.abs() <= 3.0 {
-                let w = 1.0 / (1.0 + d * d);
-                sw += w;
-                sx += w * q[0];
-                sy += w * q[1];
-                near.push((q, w));
-            }
+            *wk = if d.abs() <= 3.0 {
+                1.0 / (1.0 + d * d)
+            } else {
+                0.0
+            };
         }
-        if near.len() < 2 || sw <= 0.0 {
+        // EM's weighted TLS; the normal keeps the orientation of the last one.
+        let Some((m, rho)) = weighted_fit(local, &w, n) else {
             break;
-        }
-        let c = [sx / sw, sy / sw];
-        let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
-        for (q, w) in &near {
-            let (dx, dy) = (q[0] - c[0], q[1] - c[1]);
-            sxx += w * dx * dx;
-            sxy += w * dx * dy;
-            syy += w * dy * dy;
-        }
-        // The principal axis; the normal is perpendicular to it, oriented like the old one.
-        let theta = 0.5 * (2.0 * sxy).atan2(sxx - syy);
-        let (st, ct) = theta.sin_cos();
-        let mut m = [-st, ct];
-        if dot(m, n) < 0.0 {
-            m = [-m[0], -m[1]];
-        }
-        n = m;
-        r = dot(n, c);
+        };
+        (n, r) = (m, rho);
     }
     (n, r)
 }
