@@ -567,6 +567,14 @@ _EVALUATE_EPILOG = """\
 examples:
   hitl-slam evaluate                   # everything; a few minutes
   hitl-slam evaluate --quick -o /tmp/e # the lost-poses room and the corridors only
+  hitl-slam evaluate --full -j 2       # the harder benchmark: 9 maps x 4 fault models x
+                                       # 5 / 15 cm endpoint noise, a careful person
+  hitl-slam evaluate --full --maps Orebro,Seattle --faults jump  # a part of it
+
+The full evaluation's maps: Intel lab, Freiburg 079, Seattle, Orebro, Belgioioso, Edmonton (real
+logs), lost poses room, parallel corridors, campus; its fault models: jump (30 degrees), drift
+(15 degrees over the run), bend (10 degrees along the straightest stretch), laps (two jumps:
+three copies). Exit status 0 when every target is met, 1 when one is not.
 
 Real logs are used when ../shared/datasets/laser (beside the repository) is present.
 """
@@ -576,11 +584,73 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from hitl_slam.evaluation import run_evaluation, table
 
     out = Path(args.output)
+    if args.full:
+        return _evaluate_full(args, out)
+    if args.maps or args.faults:
+        raise InputError("--maps and --faults select parts of the full evaluation; add --full")
     log = (lambda _m: None) if args.quiet else print
     results, report = run_evaluation(out, seed=args.seed, quick=args.quick, log=log)
     print(table(results))
     print(f"report: {report}")
     return 0
+
+
+def _evaluate_full(args: argparse.Namespace, out: Path) -> int:
+
+    from hitl_slam.evaluation import provenance
+    from hitl_slam.full_evaluation import FULL_MAPS, full_report, run_full, summary
+    from hitl_slam.io.atomic import atomic_write_text
+    from hitl_slam.sim.fault_models import FAULT_MODELS
+
+    maps = [m.strip() for m in args.maps.split(",")] if args.maps else list(FULL_MAPS)
+    faults = [f.strip() for f in args.faults.split(",")] if args.faults else list(FAULT_MODELS)
+    for f in faults:
+        if f not in FAULT_MODELS:
+            raise InputError(
+                f"--faults: unknown fault model {f!r}; they are: {', '.join(FAULT_MODELS)}"
+            )
+    total = len(maps) * len(faults) * 2
+    done = [0]
+
+    def log(r: object) -> None:
+        done[0] += 1
+        if not args.quiet:
+            from hitl_slam.full_evaluation import Run
+
+            assert isinstance(r, Run)
+            print(
+                f"[{done[0]}/{total}] {r.map}, {r.fault}, {100 * r.noise_m:.0f} cm: "
+                f"{r.accepted}/{len(r.drawings)} accepted, "
+                f"{sum(d.worse for d in r.drawings)} worse, "
+                f"ATE {r.ate[0]:.3f} -> {r.ate[1]:.3f} m, "
+                f"angle {r.angle[0]:.2f} -> {r.angle[1]:.2f} deg, {r.time_s:.0f} s",
+                flush=True,
+            )
+
+    start = time.perf_counter()
+    runs = run_full(seed=args.seed, maps=maps, faults=faults, jobs=args.jobs, log=log)
+    out.mkdir(parents=True, exist_ok=True)
+    flags = " --full" + (f" --maps {args.maps}" if args.maps else "")
+    flags += f" --faults {args.faults}" if args.faults else ""
+    text = full_report(runs, provenance(args.seed, flags, time.perf_counter() - start))
+    report = out / "full.md"
+    atomic_write_text(report, text)
+    s = summary(runs)
+    print(
+        f"accepted {100 * s['accepted_share']:.1f}% of {s['drawings']:.0f} drawings, "
+        f"{s['worse']:.0f} made their map worse, {100 * s['achieved']:.0f}% of the achievable "
+        f"inconsistency reduction, angle {s['angle_after']:.2f} deg, "
+        f"spacing {s['spacing_after']:.3f} m"
+    )
+    print(f"report: {report}")
+    met = (
+        s["accepted_share"] >= 0.95
+        and s["worse"] == 0
+        and s["achieved"] >= 0.8
+        and s["angle_after"] <= 1.0
+        and s["spacing_after"] <= 0.03
+    )
+    return 0 if met else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -801,6 +871,23 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     evaluate.add_argument(
         "--quick", action="store_true", help="only the two small generated scenarios"
+    )
+    evaluate.add_argument(
+        "--full",
+        action="store_true",
+        help="the harder benchmark (issue 11): every map, every fault model, a careful person; "
+        "writes DIR/full.md",
+    )
+    evaluate.add_argument(
+        "--maps", metavar="A,B", help="with --full: only these maps (comma-separated names)"
+    )
+    evaluate.add_argument(
+        "--faults",
+        metavar="A,B",
+        help="with --full: only these fault models (jump,drift,bend,laps)",
+    )
+    evaluate.add_argument(
+        "-j", "--jobs", type=int, default=1, help="with --full: runs at once (default 1)"
     )
     evaluate.add_argument("-q", "--quiet", action="store_true", help="only the table")
     evaluate.set_defaults(func=_cmd_evaluate)

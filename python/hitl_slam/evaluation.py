@@ -346,7 +346,7 @@ def scenarios(
     return out
 
 
-def _provenance(seed: int, quick: bool, seconds: float) -> str:
+def provenance(seed: int, flags: str, seconds: float) -> str:
     """One line on how, when and where the report was made."""
     import datetime
     import os
@@ -361,9 +361,8 @@ def _provenance(seed: int, quick: bool, seconds: float) -> str:
             cpu = next(ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name"))
     except (OSError, StopIteration):
         pass
-    flag = " --quick" if quick else ""
     return (
-        f"Written by `hitl-slam evaluate{flag} --seed {seed}` (hitl-slam {__version__}) on "
+        f"Written by `hitl-slam evaluate{flags} --seed {seed}` (hitl-slam {__version__}) on "
         f"{when}, on {os.cpu_count()} cores of {cpu}, Python {platform.python_version()}; "
         f"{seconds / 60:.1f} minutes of repairs in all."
     )
@@ -398,7 +397,7 @@ def run_evaluation(
     lines = [
         "# hitl-slam evaluation",
         "",
-        _provenance(seed, quick, sum(r.time_s for r in results)),
+        provenance(seed, " --quick" if quick else "", sum(r.time_s for r in results)),
         "",
         "Each map is damaged (odometry noise plus injected faults: heading jumps, slow drift),",
         "then repaired by a simulated person who draws one noisy correction at a time on the",
