@@ -213,10 +213,13 @@ def apply_correction(
     contradicts them and the collinear solution is applied instead. Either way a note in the
     interpretation gives the figures."""
     from hitl_slam.interpret import interpret
+    from hitl_slam.odometry_check import checked_map
 
     t0 = time.perf_counter()
     current = np.ascontiguousarray(poses, dtype=np.float64)
     h = interpret(map, current, drawn, config)
+    # Where the error goes: the odometry's information, widened where its scans contradict it.
+    map = checked_map(map, config)
     t1 = time.perf_counter()
     if h.mode is Mode.COLOCATION and config.colocation_guard > 0:
         len_a, len_b = _stretch(map, current, h.s_a), _stretch(map, current, h.s_b)

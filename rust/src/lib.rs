@@ -11,7 +11,7 @@
 //! Module map: [`se2`] (pose math), [`values`] (variables), [`factors`] (residuals),
 //! [`graph`] (the factor graph and its gauge), [`init`] (initial guesses: spanning tree,
 //! chordal relaxation), [`solver`] (pattern, LM/GN, marginals),
-//! [`correction`] (explicit correction and back-propagation),
+//! [`correction`] (explicit correction and back-propagation), [`frontend`] (scan matching),
 //! `python` (the only place that knows about Python; behind the `python` feature).
 //!
 //! ```
@@ -35,6 +35,7 @@
 pub mod correction;
 pub mod error;
 pub mod factors;
+pub mod frontend;
 pub mod graph;
 pub mod init;
 pub mod interpret;

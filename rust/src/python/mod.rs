@@ -5,6 +5,7 @@
 //! package's exception classes (defined in `hitl_slam/errors.py`), and a panic is caught here
 //! and reported as an internal error instead of reaching the user as `PanicException`.
 
+mod frontend;
 mod interpret;
 mod metric;
 
@@ -803,6 +804,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(backpropagate, m)?)?;
     interpret::register(m)?;
     metric::register(m)?;
+    frontend::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

@@ -1,0 +1,131 @@
+"""The odometry checked against the scans (docs/ALGORITHM.md §I.4): every step of the chain,
+``z_k = x_k^-1 x_(k+1)``, is compared with a scan-to-scan match of the two scans it joins. Where
+they disagree far beyond both covariances (a gyro fault, a wheel slip: the paper's 30-degree
+sensor failure), the step's covariance is widened by the disagreement, so a correction's
+back-propagation and joint solve put the error there instead of spreading it over the loop.
+Steps the scans cannot check (too little overlap, a featureless view) keep their information.
+
+The map itself is not changed: its poses stay the odometry's until a person corrects it; only
+where a correction's error goes is decided by the evidence.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hitl_slam import _core
+from hitl_slam.config import DEFAULT, Config
+from hitl_slam.map import Map
+
+__all__ = ["OdometryCheck", "check_odometry", "checked_map"]
+
+FloatArray = NDArray[np.float64]
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class OdometryCheck:
+    """Per chain step k -> k+1 (``N - 1`` rows): whether the scans matched (``matched``), the
+    match (``scan_match``, as ``x_k^-1 x_(k+1)``), the squared Mahalanobis distance between it and
+    the odometry (``distance2``; NaN where unmatched), and the edge rows of the map whose
+    information was widened (``relaxed``)."""
+
+    matched: NDArray[np.bool_]
+    scan_match: FloatArray
+    distance2: FloatArray
+    relaxed: NDArray[np.int64]
+    information: FloatArray  # (M, 3, 3) the map's edge information, widened where contradicted
+
+
+def _chain_rows(map: Map) -> NDArray[np.int64]:
+    """For each step k -> k+1, the row of the map's edge joining them (-1: none)."""
+    rows = np.full(max(map.num_poses - 1, 0), -1, dtype=np.int64)
+    e = map.edges
+    forward = np.flatnonzero(e[:, 1] == e[:, 0] + 1)
+    rows[e[forward, 0]] = forward
+    return rows
+
+
+def _between(poses: FloatArray) -> FloatArray:
+    a, b = poses[:-1], poses[1:]
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+    dth = np.angle(np.exp(1j * (b[:, 2] - a[:, 2])))
+    return np.stack([c * dx + s * dy, -s * dx + c * dy, dth], axis=1)
+
+
+def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
+    """Matches every pair of consecutive scans and widens the information of the chain edges
+    the scans contradict (squared Mahalanobis distance above ``config.odometry_check``): the
+    covariance grows by the squared disagreement in x, y and heading."""
+    rows = _chain_rows(map)
+    guesses = _between(map.poses)
+    has_edge = rows >= 0
+    guesses[has_edge] = map.measurements[rows[has_edge]]
+    guesses = np.ascontiguousarray(guesses, dtype=np.float64)
+    matched, found, cov, _overlap = _core.match_consecutive(
+        np.ascontiguousarray(map.points), map.offsets, guesses
+    )
+    info = map.information.copy()
+    distance2 = np.full(rows.shape[0], math.nan)
+    relaxed = []
+    for k in np.flatnonzero(matched & has_edge):
+        row = rows[k]
+        r = map.measurements[row] - found[k]
+        r[2] = math.remainder(r[2], 2 * math.pi)
+        try:
+            odo_cov = np.linalg.inv(info[row])
+            d2 = float(r @ np.linalg.solve(odo_cov + cov[k], r))
+        except np.linalg.LinAlgError:
+            continue
+        distance2[k] = d2
+        if config.odometry_check > 0 and d2 > config.odometry_check:
+            info[row] = np.linalg.inv(odo_cov + np.diag(r * r))
+            relaxed.append(int(row))
+    if relaxed:
+        steps = ", ".join(
+            f"{int(map.edges[r, 0])}->{int(map.edges[r, 1])}" for r in relaxed[:8]
+        ) + (" ..." if len(relaxed) > 8 else "")
+        logger.info(
+            "odometry check: %d of %d steps contradicted by their scans (%s)",
+            len(relaxed),
+            rows.shape[0],
+            steps,
+        )
+    return OdometryCheck(
+        matched=np.asarray(matched, dtype=bool),
+        scan_match=found,
+        distance2=distance2,
+        relaxed=np.array(relaxed, dtype=np.int64),
+        information=info,
+    )
+
+
+_CACHE: dict[int, tuple[weakref.ref[Map], float, Map]] = {}
+
+
+def checked_map(map: Map, config: Config = DEFAULT) -> Map:
+    """``map`` with its edges' information widened where the scans contradict the odometry
+    (:func:`check_odometry`), computed once per map and threshold; ``map`` itself when the
+    check is off. Same poses, points and edges: only the information differs."""
+    if config.odometry_check <= 0 or map.num_poses < 2:
+        return map
+    key = id(map)
+    hit = _CACHE.get(key)
+    if hit is not None and hit[0]() is map and hit[1] == config.odometry_check:
+        return hit[2]
+    check = check_odometry(map, config)
+    out = dataclasses.replace(map, information=check.information)
+    _CACHE[key] = (
+        weakref.ref(map, lambda _r, k=key: _CACHE.pop(k, None)),
+        config.odometry_check,
+        out,
+    )
+    return out

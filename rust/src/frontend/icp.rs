@@ -1,0 +1,423 @@
+//! Scan-to-scan matching: point-to-line ICP (after Censi 2008, with a Huber weight and a
+//! shrinking correspondence gate), started from the best of a fan of rotations around the guess
+//! (a heading guess off by tens of degrees, as after a gyro fault, is outside ICP's basin), with
+//! a covariance from the Gauss-Newton Hessian and the residual variance.
+//!
+//! Convention: the match of `current` against `reference` is the pose `[x, y, theta]` of the
+//! current scan's frame in the reference scan's frame, so a current point `c` lands at
+//! `R(theta) c + (x, y)` among the reference points; for consecutive scans of a chain that is
+//! `z_k = x_k^-1 x_(k+1)`, the odometry's own measurement.
+
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+use rstar::primitives::GeomWithData;
+use rstar::RTree;
+
+use crate::error::{HitlError, Result};
+use crate::se2::wrap_angle;
+
+/// How scans are matched.
+#[derive(Clone, Debug)]
+pub struct IcpParams {
+    /// Half-width of the fan of rotation guesses around the given heading [rad].
+    pub search: f64,
+    /// Spacing of the fan [rad].
+    pub search_step: f64,
+    /// Correspondence gate at the first iteration [m]; shrinks by 0.7 an iteration ...
+    pub max_pair_distance: f64,
+    /// ... down to this [m].
+    pub min_pair_distance: f64,
+    /// Huber threshold on point-to-line residuals [m].
+    pub huber: f64,
+    /// Neighbourhood radius for reference normals [m].
+    pub normal_radius: f64,
+    pub iterations: usize,
+    /// A match is good when at least this fraction of the current points ...
+    pub min_overlap: f64,
+    /// ... and at least this many are paired at the end.
+    pub min_pairs: usize,
+    /// Standard deviations added to the Hessian's covariance (it is optimistic): [m], [rad].
+    pub sigma_floor: [f64; 2],
+}
+
+impl Default for IcpParams {
+    fn default() -> Self {
+        Self {
+            search: 45f64.to_radians(),
+            search_step: 1.5f64.to_radians(),
+            max_pair_distance: 0.5,
+            min_pair_distance: 0.1,
+            huber: 0.05,
+            normal_radius: 0.25,
+            iterations: 40,
+            min_overlap: 0.5,
+            min_pairs: 30,
+            sigma_floor: [0.02, 0.5f64.to_radians()],
+        }
+    }
+}
+
+/// The outcome of one match.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScanMatch {
+    /// Enough overlap and a well-posed Hessian: `pose` and `covariance` mean something.
+    pub ok: bool,
+    pub pose: [f64; 3],
+    pub covariance: [[f64; 3]; 3],
+    /// Fraction of the current scan's points paired with a reference line at the end.
+    pub overlap: f64,
+    /// Root mean square point-to-line residual of the paired points [m].
+    pub rms: f64,
+}
+
+impl ScanMatch {
+    fn failed(guess: [f64; 3]) -> Self {
+        Self {
+            ok: false,
+            pose: guess,
+            covariance: [[0.0; 3]; 3],
+            overlap: 0.0,
+            rms: f64::INFINITY,
+        }
+    }
+}
+
+/// A reference scan ready for matching: its points in an R*-tree, with a unit normal where its
+/// neighbourhood is a line.
+struct Reference {
+    tree: RTree<GeomWithData<[f64; 2], usize>>,
+    points: Vec<[f64; 2]>,
+    normals: Vec<Option<[f64; 2]>>,
+}
+
+impl Reference {
+    fn new(points: &[[f64; 2]], radius: f64) -> Self {
+        let tree = RTree::bulk_load(
+            points
+                .iter()
+                .enumerate()
+                .map(|(i, p)| GeomWithData::new(*p, i))
+                .collect(),
+        );
+        let normals = points
+            .iter()
+            .map(|p| {
+                let near: Vec<usize> = tree
+                    .locate_within_distance(*p, radius * radius)
+                    .map(|e| e.data)
+                    .collect();
+                if near.len() < 3 {
+                    return None;
+                }
+                let n = near.len() as f64;
+                let (mut mx, mut my) = (0.0, 0.0);
+                for &q in &near {
+                    let q = points[q];
+                    mx += q[0];
+                    my += q[1];
+                }
+                mx /= n;
+                my /= n;
+                let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+                for &q in &near {
+                    let q = points[q];
+                    let (dx, dy) = (q[0] - mx, q[1] - my);
+                    sxx += dx * dx;
+                    sxy += dx * dy;
+                    syy += dy * dy;
+                }
+                // Eigen-decomposition of the 2x2 scatter: the normal is the minor axis.
+                let half_trace = 0.5 * (sxx + syy);
+                let root = (0.25 * (sxx - syy).powi(2) + sxy * sxy).sqrt();
+                let (major, minor) = (half_trace + root, half_trace - root);
+                if major <= 0.0 || minor > 0.05 * major {
+                    return None; // a corner or a blob, not a line
+                }
+                let angle = 0.5 * (2.0 * sxy).atan2(sxx - syy) + std::f64::consts::FRAC_PI_2;
+                Some([angle.cos(), angle.sin()])
+            })
+            .collect();
+        Self {
+            tree,
+            points: points.to_vec(),
+            normals,
+        }
+    }
+
+    /// The nearest reference point to `q` and its squared distance.
+    fn nearest(&self, q: [f64; 2]) -> (usize, f64) {
+        match self.tree.nearest_neighbor(&q) {
+            Some(e) => {
+                let p = e.geom();
+                (e.data, (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2))
+            }
+            None => (0, f64::INFINITY),
+        }
+    }
+
+    /// How many of `current` (every `stride`-th) land within `gate` of a reference point.
+    fn score(&self, current: &[[f64; 2]], pose: [f64; 3], gate: f64, stride: usize) -> usize {
+        let (c, s) = (pose[2].cos(), pose[2].sin());
+        current
+            .iter()
+            .step_by(stride)
+            .filter(|p| {
+                let q = [c * p[0] - s * p[1] + pose[0], s * p[0] + c * p[1] + pose[1]];
+                self.nearest(q).1 <= gate * gate
+            })
+            .count()
+    }
+
+    /// Point-to-line ICP from `start`; returns the pose, the final Hessian and its residuals.
+    fn icp(&self, current: &[[f64; 2]], start: [f64; 3], p: &IcpParams) -> ScanMatch {
+        let mut pose = start;
+        let mut gate = p.max_pair_distance;
+        let mut last = (Matrix3::zeros(), 0usize, 0.0f64, 0.0f64);
+        for iteration in 0..p.iterations {
+            let (c, s) = (pose[2].cos(), pose[2].sin());
+            let mut h = Matrix3::<f64>::zeros();
+            let mut g = Vector3::<f64>::zeros();
+            let (mut pairs, mut sq, mut wsum) = (0usize, 0.0, 0.0);
+            for pt in current {
+                let q = [
+                    c * pt[0] - s * pt[1] + pose[0],
+                    s * pt[0] + c * pt[1] + pose[1],
+                ];
+                let (item, d2) = self.nearest(q);
+                if d2 > gate * gate {
+                    continue;
+                }
+                let Some(n) = self.normals[item] else {
+                    continue;
+                };
+                let r = self.points[item];
+                let e = n[0] * (q[0] - r[0]) + n[1] * (q[1] - r[1]);
+                let dq = [-s * pt[0] - c * pt[1], c * pt[0] - s * pt[1]];
+                let j = Vector3::new(n[0], n[1], n[0] * dq[0] + n[1] * dq[1]);
+                let w = if e.abs() <= p.huber {
+                    1.0
+                } else {
+                    p.huber / e.abs()
+                };
+                h += w * j * j.transpose();
+                g += w * e * j;
+                pairs += 1;
+                sq += w * e * e;
+                wsum += w;
+            }
+            last = (h, pairs, sq, wsum);
+            if pairs < 3 {
+                break;
+            }
+            let Some(step) = (h + Matrix3::identity() * 1e-9)
+                .try_inverse()
+                .map(|hi| hi * g)
+            else {
+                break;
+            };
+            pose = [
+                pose[0] - step[0],
+                pose[1] - step[1],
+                wrap_angle(pose[2] - step[2]),
+            ];
+            let small = step[0].abs() < 1e-5 && step[1].abs() < 1e-5 && step[2].abs() < 1e-6;
+            gate = (gate * 0.7).max(p.min_pair_distance);
+            if small && gate <= p.min_pair_distance && iteration > 2 {
+                break;
+            }
+        }
+        let (h, pairs, sq, wsum) = last;
+        let overlap = pairs as f64 / current.len().max(1) as f64;
+        let rms = if wsum > 0.0 {
+            (sq / wsum).sqrt()
+        } else {
+            f64::INFINITY
+        };
+        let dof = (pairs as f64 - 3.0).max(1.0);
+        let variance = (sq / dof).max(1e-6);
+        let Some(cov) = h.try_inverse().map(|hi| hi * variance) else {
+            return ScanMatch {
+                overlap,
+                rms,
+                ..ScanMatch::failed(pose)
+            };
+        };
+        let [fs, fr] = p.sigma_floor;
+        let mut covariance = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                covariance[i][j] = cov[(i, j)];
+            }
+        }
+        covariance[0][0] += fs * fs;
+        covariance[1][1] += fs * fs;
+        covariance[2][2] += fr * fr;
+        let finite = covariance.iter().flatten().all(|v| v.is_finite());
+        ScanMatch {
+            ok: finite && pairs >= p.min_pairs && overlap >= p.min_overlap,
+            pose,
+            covariance,
+            overlap,
+            rms,
+        }
+    }
+}
+
+/// Matches `current` against `reference` from `guess` (see the module's convention).
+pub fn match_scans(
+    reference: &[[f64; 2]],
+    current: &[[f64; 2]],
+    guess: [f64; 3],
+    params: &IcpParams,
+) -> ScanMatch {
+    if reference.len() < 3 || current.len() < 3 || !guess.iter().all(|v| v.is_finite()) {
+        return ScanMatch::failed(guess);
+    }
+    let r = Reference::new(reference, params.normal_radius);
+    // The fan: rotations around the guess, scored by how many points land near the reference.
+    let stride = (current.len() / 120).max(1);
+    let steps = (params.search / params.search_step.max(1e-6)).round() as i64;
+    let mut best = (r.score(current, guess, 0.15, stride), 0i64);
+    for k in -steps..=steps {
+        if k == 0 {
+            continue;
+        }
+        let cand = [
+            guess[0],
+            guess[1],
+            wrap_angle(guess[2] + k as f64 * params.search_step),
+        ];
+        let score = r.score(current, cand, 0.15, stride);
+        if score > best.0 || (score == best.0 && k.abs() < best.1.abs()) {
+            best = (score, k);
+        }
+    }
+    let from_fan = [
+        guess[0],
+        guess[1],
+        wrap_angle(guess[2] + best.1 as f64 * params.search_step),
+    ];
+    let mut out = r.icp(current, from_fan, params);
+    if best.1 != 0 {
+        let plain = r.icp(current, guess, params);
+        if (plain.overlap, -plain.rms) > (out.overlap, -out.rms) {
+            out = plain;
+        }
+    }
+    out
+}
+
+/// Matches every scan `k + 1` of a chain against scan `k` from `guesses[k]` (in parallel).
+/// `offsets` (`N + 1`) delimit the scans in `points`.
+pub fn match_chain(
+    points: &[[f64; 2]],
+    offsets: &[usize],
+    guesses: &[[f64; 3]],
+    params: &IcpParams,
+) -> Result<Vec<ScanMatch>> {
+    let n = offsets.len().saturating_sub(1);
+    if offsets.is_empty() || offsets[n] != points.len() || offsets.windows(2).any(|w| w[0] > w[1]) {
+        return Err(HitlError::Input(
+            "offsets must rise from 0 to the number of points".into(),
+        ));
+    }
+    if guesses.len() + 1 != n.max(1) {
+        return Err(HitlError::Input(format!(
+            "{} guesses for {n} scans; give one per consecutive pair",
+            guesses.len()
+        )));
+    }
+    Ok((0..guesses.len())
+        .into_par_iter()
+        .map(|k| {
+            let reference = &points[offsets[k]..offsets[k + 1]];
+            let current = &points[offsets[k + 1]..offsets[k + 2]];
+            match_scans(reference, current, guesses[k], params)
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A room's walls seen from `pose` (robot frame): points every 2 cm on a 6 x 4 m rectangle
+    /// with a 1 m box, within 8 m.
+    fn room(pose: [f64; 3]) -> Vec<[f64; 2]> {
+        let walls = [
+            ([0.0, 0.0], [6.0, 0.0]),
+            ([6.0, 0.0], [6.0, 4.0]),
+            ([6.0, 4.0], [0.0, 4.0]),
+            ([0.0, 4.0], [0.0, 0.0]),
+            ([2.0, 1.0], [3.0, 1.0]),
+            ([3.0, 1.0], [3.0, 1.6]),
+        ];
+        let (c, s) = (pose[2].cos(), pose[2].sin());
+        let mut out = Vec::new();
+        for (a, b) in walls {
+            let len = ((b[0] - a[0]) as f64).hypot(b[1] - a[1]);
+            let k = (len / 0.02) as usize;
+            for i in 0..=k {
+                let t = i as f64 / k as f64;
+                let w = [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])];
+                let d = [w[0] - pose[0], w[1] - pose[1]];
+                out.push([c * d[0] + s * d[1], -s * d[0] + c * d[1]]);
+            }
+        }
+        out
+    }
+
+    fn between(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+        let (c, s) = (a[2].cos(), a[2].sin());
+        let d = [b[0] - a[0], b[1] - a[1]];
+        [
+            c * d[0] + s * d[1],
+            -s * d[0] + c * d[1],
+            wrap_angle(b[2] - a[2]),
+        ]
+    }
+
+    #[test]
+    fn finds_the_motion_from_a_heading_off_by_thirty_degrees() {
+        let (a, b) = ([4.0, 2.5, 0.3], [4.3, 2.4, 0.45]);
+        let truth = between(a, b);
+        for off in [0.0, 0.2, -0.52, 0.6] {
+            let guess = [truth[0] + 0.03, truth[1] - 0.02, truth[2] + off];
+            let m = match_scans(&room(a), &room(b), guess, &IcpParams::default());
+            assert!(m.ok, "offset {off}: {m:?}");
+            assert!((m.pose[0] - truth[0]).abs() < 0.01, "{m:?} vs {truth:?}");
+            assert!((m.pose[1] - truth[1]).abs() < 0.01, "{m:?} vs {truth:?}");
+            assert!((m.pose[2] - truth[2]).abs() < 0.003, "{m:?} vs {truth:?}");
+            assert!(m.covariance[2][2] > 0.0 && m.overlap > 0.9);
+        }
+    }
+
+    #[test]
+    fn scans_with_nothing_in_common_do_not_match() {
+        let far: Vec<[f64; 2]> = (0..200).map(|i| [50.0 + 0.01 * i as f64, 30.0]).collect();
+        let m = match_scans(
+            &room([3.0, 2.0, 0.0]),
+            &far,
+            [0.0; 3],
+            &IcpParams::default(),
+        );
+        assert!(!m.ok);
+    }
+
+    #[test]
+    fn a_chain_is_matched_pair_by_pair_and_checks_its_input() {
+        let poses = [[1.0, 1.0, 0.0], [1.3, 1.1, 0.1], [1.7, 1.2, 0.25]];
+        let mut points = Vec::new();
+        let mut offsets = vec![0];
+        for p in poses {
+            points.extend(room(p));
+            offsets.push(points.len());
+        }
+        let guesses = [between(poses[0], poses[1]), between(poses[1], poses[2])];
+        let out = match_chain(&points, &offsets, &guesses, &IcpParams::default()).unwrap();
+        assert_eq!(out.len(), 2);
+        assert!(out.iter().all(|m| m.ok));
+        assert!(match_chain(&points, &offsets, &guesses[..1], &IcpParams::default()).is_err());
+        assert!(match_chain(&points, &[0, 5], &[], &IcpParams::default()).is_err());
+    }
+}

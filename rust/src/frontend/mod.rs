@@ -1,0 +1,7 @@
+//! The scan-matching front end. So far: scan-to-scan matching ([`icp`]), used to check each
+//! odometry step against the two scans it joins (the evidence that puts a correction's error at
+//! a heading fault instead of spreading it over a lap).
+
+pub mod icp;
+
+pub use icp::{match_chain, match_scans, IcpParams, ScanMatch};
