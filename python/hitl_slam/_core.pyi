@@ -18,6 +18,7 @@ __all__ = [
     "explicit_transform",
     "inconsistency",
     "line_fit",
+    "match_consecutive",
     "segment_candidates",
     "wrap_angle",
 ]
@@ -41,6 +42,15 @@ def backpropagate(
     trans_var: NDArray[np.float64],
 ) -> NDArray[np.float64]:
     """COP-SLAM back-propagation: the chain from poses[start] made to meet poses[end]."""
+
+def match_consecutive(
+    points: NDArray[np.float64],
+    offsets: NDArray[np.int64],
+    guesses: NDArray[np.float64],
+    *,
+    search_deg: float = 45.0,
+) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Scan k+1 matched against scan k from guesses[k]: (ok, poses, covariances, overlap)."""
 
 @final
 class IterationRecord:

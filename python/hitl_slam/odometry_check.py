@@ -16,6 +16,7 @@ import logging
 import math
 import weakref
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
@@ -123,9 +124,9 @@ def checked_map(map: Map, config: Config = DEFAULT) -> Map:
         return hit[2]
     check = check_odometry(map, config)
     out = dataclasses.replace(map, information=check.information)
-    _CACHE[key] = (
-        weakref.ref(map, lambda _r, k=key: _CACHE.pop(k, None)),
-        config.odometry_check,
-        out,
-    )
+    _CACHE[key] = (weakref.ref(map, partial(_forget, key)), config.odometry_check, out)
     return out
+
+
+def _forget(key: int, _ref: object) -> None:
+    _CACHE.pop(key, None)
