@@ -79,10 +79,11 @@ class Config:
     # same correction solved as collinear before it is applied as collinear (0 = off; 3.84 is
     # chi2 with one degree of freedom at 95%: the along-the-wall part is one constraint)
     colocation_guard: float = 3.84
-    # odometry check: an odometry step whose two scans match this far from it (squared
-    # Mahalanobis distance, 3 dof; 0 = off) gets its covariance widened by the disagreement, so a
-    # correction puts its error there (a heading fault) instead of spreading it over the loop
-    odometry_check: float = 16.27
+    # odometry check: an odometry step whose two scans turn this far from it (squared
+    # Mahalanobis distance of the heading, 1 dof, 99.9%; 0 = off) gets its heading variance
+    # widened by the disagreement, so a correction puts its error there (a heading fault)
+    # instead of spreading it over the loop
+    odometry_check: float = 10.83
     # §6 metric / occupancy export
     grid_resolution: float = 0.05  # [m]
     # §6 inconsistency metric: its robustness rules (without them a perfect map scores 100s m^2)

@@ -1,7 +1,7 @@
 """The odometry checked against the scans (docs/ALGORITHM.md §I.4): every step of the chain,
 ``z_k = x_k^-1 x_(k+1)``, is compared with a scan-to-scan match of the two scans it joins. Where
-they disagree far beyond both covariances (a gyro fault, a wheel slip: the paper's 30-degree
-sensor failure), the step's covariance is widened by the disagreement, so a correction's
+their turns disagree far beyond both variances (a gyro fault, a wheel slip: the paper's 30-degree
+sensor failure), the step's heading variance is widened by the disagreement, so a correction's
 back-propagation and joint solve put the error there instead of spreading it over the loop.
 Steps the scans cannot check (too little overlap, a featureless view) keep their information.
 
@@ -63,9 +63,12 @@ def _between(poses: FloatArray) -> FloatArray:
 
 
 def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
-    """Matches every pair of consecutive scans and widens the information of the chain edges
-    the scans contradict (squared Mahalanobis distance above ``config.odometry_check``): the
-    covariance grows by the squared disagreement in x, y and heading."""
+    """Matches every pair of consecutive scans and widens the heading information of the chain
+    edges whose turn the scans contradict (squared Mahalanobis distance of the heading
+    difference above ``config.odometry_check``, 1 dof): the heading variance grows by the
+    squared disagreement. Only the heading: a scan match along a corridor or among repeated
+    structure can be off by a metre along it while its turn is right, and heading faults (a
+    gyro, a wheel slip while turning) are the ones that bend a whole map."""
     rows = _chain_rows(map)
     guesses = _between(map.poses)
     has_edge = rows >= 0
@@ -79,16 +82,17 @@ def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
     relaxed = []
     for k in np.flatnonzero(matched & has_edge):
         row = rows[k]
-        r = map.measurements[row] - found[k]
-        r[2] = math.remainder(r[2], 2 * math.pi)
+        r = float(math.remainder(map.measurements[row, 2] - found[k, 2], 2 * math.pi))
         try:
-            odo_cov = np.linalg.inv(info[row])
-            d2 = float(r @ np.linalg.solve(odo_cov + cov[k], r))
+            odo_var = float(np.linalg.inv(info[row])[2, 2])
         except np.linalg.LinAlgError:
             continue
+        d2 = r * r / (odo_var + float(cov[k, 2, 2]))
         distance2[k] = d2
         if config.odometry_check > 0 and d2 > config.odometry_check:
-            info[row] = np.linalg.inv(odo_cov + np.diag(r * r))
+            odo_cov = np.linalg.inv(info[row])
+            odo_cov[2, 2] += r * r
+            info[row] = np.linalg.inv(odo_cov)
             relaxed.append(int(row))
     if relaxed:
         steps = ", ".join(

@@ -50,9 +50,9 @@ impl Default for IcpParams {
             huber: 0.05,
             normal_radius: 0.25,
             iterations: 40,
-            min_overlap: 0.5,
-            min_pairs: 30,
-            sigma_floor: [0.02, 0.5f64.to_radians()],
+            min_overlap: 0.25,
+            min_pairs: 25,
+            sigma_floor: [0.02, 1.0f64.to_radians()],
         }
     }
 }
