@@ -268,6 +268,10 @@ def _pair_rules(
     return a, b, xa, xb, swapped
 
 
+MIN_EXTENT_M = 0.05
+"""[m] Observations spanning less than this along their line give it no direction."""
+
+
 def _refit(
     sel: _Selection, map: Map, poses: NDArray[np.float64], band: float
 ) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -381,10 +385,18 @@ def interpret(
 
     for note in notes:
         logger.debug("interpret: %s", note)
+    line_a, line_b = _refit(a, map, poses, band), _refit(b, map, poses, band)
+    for name, (p, q) in (("a", line_a), ("b", line_b)):
+        length = math.hypot(q[0] - p[0], q[1] - p[1])
+        if not length >= MIN_EXTENT_M:
+            raise CorrectionRejected(
+                f"the observations under segment {name} cover {length:.3f} m of wall, too little "
+                "to give it a direction; draw along a longer stretch of wall"
+            )
     return Interpretation(
         mode=drawn.mode,
-        line_a=_refit(a, map, poses, band),
-        line_b=_refit(b, map, poses, band),
+        line_a=line_a,
+        line_b=line_b,
         s_a=a.rows,
         s_b=b.rows,
         x_a=xa,
