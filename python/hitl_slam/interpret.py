@@ -18,6 +18,7 @@ from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Segment
 from hitl_slam.errors import CorrectionRejected, InputError
 from hitl_slam.map import Map
+from hitl_slam.passes import best_pass
 
 __all__ = ["MIN_SEGMENT_LENGTH", "TOLERANCE_MIXING", "VISIT_GAP", "interpret"]
 
@@ -357,6 +358,23 @@ def interpret(
         for s in (a, b)
     ]
 
+    for s in (a, b):
+        if s.rows.shape[0] == 0 and search > 0:
+            # A blur of passes that disagree a little each: find the one drawn on by itself.
+            found = best_pass(
+                map,
+                poses,
+                s.drawn,
+                search=search,
+                sigma_em=config.sigma_em,
+                closeness=config.drawing_sigma * sigma_h,
+                pointing=sigma_h,
+                gap=visit_gap,
+                min_points=t_p,
+            )
+            if found is not None:
+                s.rows, s.weights = found.rows, np.ones(found.rows.shape[0])
+                notes.append(found.note(s.name))
     empty = [s for s in (a, b) if s.rows.shape[0] == 0]
     if empty:
         which = " and ".join(s.name for s in empty)
