@@ -19,7 +19,10 @@ from numpy.typing import NDArray
 from hitl_slam import _core
 from hitl_slam.map import Map
 
-__all__ = ["PassLine", "best_pass"]
+__all__ = ["MAX_TURN", "PassLine", "best_pass"]
+
+MAX_TURN = 0.4
+"""[rad] A pass whose line turns more from the drawing is a crossing wall (as snapping's cap)."""
 
 
 @dataclass(frozen=True)
@@ -109,6 +112,8 @@ def best_pass(
         offset = float(np.mean(np.abs(np.stack([p0, p1]) @ n - rho)))
         line_dir = np.array([-n[1], n[0]])
         turn = math.acos(min(1.0, abs(float(line_dir @ direction))))
+        if turn > MAX_TURN:
+            continue  # a crossing wall, not the one drawn along
         score = math.log(n_in) - offset**2 / (2 * closeness**2) - turn**2 / (2 * sigma_t**2)
         sel = idx[inlier]
         pose = map.pose_of_point()[sel]

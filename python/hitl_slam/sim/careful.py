@@ -26,6 +26,11 @@ __all__ = ["CarefulPerson"]
 
 FloatArray = NDArray[np.float64]
 
+_MIN_STROKE = 8.0
+"""A careful person's strokes are at least this many times their endpoint noise long (and at
+least 0.3 m): with a hand that wanders 15 cm, a 20 cm stroke has no direction, and a careful
+person draws a longer stretch of the wall or none."""
+
 _SAME_ENDS_M = 0.3
 """Two passes saw the same stretch of a wall when both ends of what each saw (the 2nd and 98th
 percentiles along the true wall) agree to this [m]: a person sees the same corners in both."""
@@ -106,6 +111,8 @@ class CarefulPerson(SimulatedHuman):
             if drawn is None:
                 return None
             ends = np.asarray(drawn[0], dtype=np.float64)
+        if float(np.hypot(*(ends[1] - ends[0]))) < max(0.3, _MIN_STROKE * self.endpoint_noise):
+            return None
         ends = ends + self.rng.normal(0.0, self.endpoint_noise, (2, 2))
         if self.rng.random() < 0.5:
             ends = ends[::-1]

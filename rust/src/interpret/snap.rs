@@ -118,7 +118,9 @@ pub fn snap(
         .sigma
         .atan2(half.max(params.sigma))
         .max(max_turn / MAX_STEPS as f64);
-    let steps = (max_turn / step).ceil() as i64;
+    let steps = (max_turn / step).ceil().max(1.0) as i64;
+    // The fan ends at max_turn exactly (a coarse step on a short stroke would overshoot it).
+    let step = max_turn / steps as f64;
     // Offsets reach at most search band + half * sin(max_turn) from the midpoint.
     let reach = params.search_band + half * max_turn.sin() + params.sigma;
     let bins = ((2.0 * reach / params.sigma).ceil() as usize).max(3);
@@ -176,15 +178,21 @@ pub fn snap(
         .map(|f| f.0)
         .fold(f64::NEG_INFINITY, f64::max);
     let (s, c) = turn.sin_cos();
-    let (n, offset) = refine(
-        &local,
-        [
-            c * frame.n[0] - s * frame.n[1],
-            s * frame.n[0] + c * frame.n[1],
-        ],
-        offset,
-        params.sigma,
-    );
+    let hough = [
+        c * frame.n[0] - s * frame.n[1],
+        s * frame.n[0] + c * frame.n[1],
+    ];
+    let refined = refine(&local, hough, offset, params.sigma);
+    // A short drawing near a corner: the refinement can slide onto the crossing wall. A person
+    // drawing along a wall is never that far off its direction; keep the histogram's line.
+    let refined_turn = (refined.0[0] * frame.n[1] - refined.0[1] * frame.n[0])
+        .abs()
+        .atan2(dot(refined.0, frame.n).abs());
+    let (n, offset) = if refined_turn <= MAX_TURN_CAP + 0.05 {
+        refined
+    } else {
+        (hough, offset)
+    };
     let project = |p: Point, e: Point| -> (Point, f64) {
         let d = dot(n, e) - offset;
         ([p[0] - d * n[0], p[1] - d * n[1]], d.abs())
@@ -296,6 +304,21 @@ mod tests {
         // Drawing direction does not change the line.
         let r = run(&flat, Segment::new([0.5, 0.1], [3.5, 0.35])).unwrap();
         assert!((r.segment.b[1] - s.segment.a[1]).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_short_drawing_at_a_corner_keeps_to_its_wall() {
+        // A 22 cm stroke along the end of a short wall y = 0 that meets a dense wall x = 0.3:
+        // the refinement alone slides onto the crossing wall (63 degrees); the snapped line must
+        // stay within the searched turn of the stroke.
+        let mut rng = rand::rngs::StdRng::seed_from_u64(4);
+        let mut flat = wall(&mut rng, 0.0, 0.0, 0.25, 0.0, 0.01);
+        for k in 0..400 {
+            flat.push(0.3 + 0.005 * ((k % 3) as f64 - 1.0));
+            flat.push(-1.0 + 0.005 * k as f64);
+        }
+        let s = run(&flat, Segment::new([0.1, 0.1], [0.3, 0.0])).unwrap();
+        assert!(s.turn <= MAX_TURN_CAP + 0.05 + 1e-12, "{s:?}");
     }
 
     #[test]
