@@ -62,13 +62,54 @@ def _between(poses: FloatArray) -> FloatArray:
     return np.stack([c * dx + s * dy, -s * dx + c * dy, dth], axis=1)
 
 
+def _compose(a: FloatArray, b: FloatArray) -> FloatArray:
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return np.array(
+        [
+            a[0] + c * b[0] - s * b[1],
+            a[1] + s * b[0] + c * b[1],
+            math.remainder(a[2] + b[2], 2 * math.pi),
+        ]
+    )
+
+
+def _confirmed(map: Map, steps: FloatArray, k: int, r: float, config: Config) -> bool:
+    """Whether the scans two steps apart across step k (k-1 -> k+1 and k -> k+2) tell the same:
+    at least one such match found, and every one found disagrees with the odometry's two-step
+    turn by about ``r`` too (beyond the same test). One scan pair can match wrongly with a
+    confident covariance (a door frame, a moving person); a real fault shows in every pair
+    across it."""
+    n = map.num_poses
+    votes = []
+    for i in (k - 1, k):
+        j = i + 2
+        if i < 0 or j >= n:
+            continue
+        pts = [map.points[map.offsets[p] : map.offsets[p + 1]] for p in (i, j)]
+        offsets = np.array([0, len(pts[0]), len(pts[0]) + len(pts[1])], dtype=np.int64)
+        guess = _compose(steps[i], steps[i + 1]).reshape(1, 3)
+        ok, found, cov, _ = _core.match_consecutive(
+            np.ascontiguousarray(np.concatenate(pts)), offsets, np.ascontiguousarray(guess)
+        )
+        if not ok[0]:
+            continue
+        r2 = math.remainder(float(guess[0, 2] - found[0, 2]), 2 * math.pi)
+        votes.append(
+            r2 * r > 0
+            and r2 * r2 / (4 * float(cov[0, 2, 2])) > config.odometry_check
+            and abs(r2 - r) < 0.5 * abs(r)
+        )
+    return bool(votes) and all(votes)
+
+
 def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
     """Matches every pair of consecutive scans and widens the heading information of the chain
     edges whose turn the scans contradict (squared Mahalanobis distance of the heading
     difference above ``config.odometry_check``, 1 dof): the heading variance grows by the
     squared disagreement. Only the heading: a scan match along a corridor or among repeated
     structure can be off by a metre along it while its turn is right, and heading faults (a
-    gyro, a wheel slip while turning) are the ones that bend a whole map."""
+    gyro, a wheel slip while turning) are the ones that bend a whole map. A step is widened only
+    when the matches two steps apart across it confirm the fault (:func:`_confirmed`)."""
     rows = _chain_rows(map)
     guesses = _between(map.poses)
     has_edge = rows >= 0
@@ -89,7 +130,11 @@ def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
             continue
         d2 = r * r / (odo_var + float(cov[k, 2, 2]))
         distance2[k] = d2
-        if config.odometry_check > 0 and d2 > config.odometry_check:
+        if (
+            config.odometry_check > 0
+            and d2 > config.odometry_check
+            and _confirmed(map, guesses, int(k), r, config)
+        ):
             odo_cov = np.linalg.inv(info[row])
             odo_cov[2, 2] += r * r
             info[row] = np.linalg.inv(odo_cov)
