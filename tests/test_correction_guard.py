@@ -84,3 +84,66 @@ def test_long_colocation_of_diverging_copies_ends_on_one_line(seed: int) -> None
     lap1 = w.laps[1]
     d = np.angle(np.exp(1j * (result.poses[lap1, 2] - w.map.poses[lap1, 2] + math.radians(5.0))))
     assert np.abs(d).max() < math.radians(0.3)
+
+
+def _segment_over(points: np.ndarray) -> list[list[float]]:
+    """A segment through ``points`` along their line, 10th to 90th percentile."""
+    centre = points.mean(axis=0)
+    _, vecs = np.linalg.eigh((points - centre).T @ (points - centre))
+    d = vecs[:, 1]
+    t = np.quantile((points - centre) @ d, [0.1, 0.9])
+    return [list(centre + t[0] * d), list(centre + t[1] * d)]
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_result_beyond_the_odometry_noise_is_tried_again_or_refused(seed: int) -> None:
+    """The consistency guard's decision, on a real log (Seattle, Radish) damaged by odometry
+    noise: a solved result that breaks the chain by 40 degrees at one step (far beyond the
+    odometry's noise) is not applied as is. With the visit choice the drawing allows it is
+    solved again (a note gives both chi2 figures) when that is within the limit, and refused
+    with the figures when no alternative exists; a result within the noise passes untouched."""
+    import dataclasses
+
+    from hitl_slam.full_evaluation import LASER, _base_scenario
+    from hitl_slam.interpret import interpret
+    from hitl_slam.pipeline import _consistency_guard, _correct, _graph_chi2, chi2_limit
+    from hitl_slam.sim.fault_models import damaged
+
+    if not (LASER / "seattle-corrected.log.gz").is_file():
+        pytest.skip("../shared/datasets/laser is not beside the repository")
+    scenario = damaged(_base_scenario("Seattle", 0), [], seed)
+    m, poses = scenario.map, scenario.map.poses
+    n = m.num_poses
+    rng = np.random.default_rng(seed)
+    pairs = [p for p in scenario.feature_pairs if p.kind == "perpendicular"]
+    drawn = None
+    for k in rng.permutation(len(pairs)):
+        pa = scenario.wall_points(poses, pairs[k].i, (0, n // 3))
+        pb = scenario.wall_points(poses, pairs[k].j, (2 * n // 3, n))
+        if len(pa) >= 150 and len(pb) >= 150:
+            drawn = DrawnCorrection.make(_segment_over(pa), _segment_over(pb), Mode.PERPENDICULAR)
+            break
+    assert drawn is not None
+    h = interpret(m, poses, drawn)
+    good = _correct(m, poses, h, [], DEFAULT)
+    limit = chi2_limit(3 * m.edges.shape[0], DEFAULT.consistency_guard)
+    assert _graph_chi2(m, good[0]) < limit
+    out = _consistency_guard(m, poses, drawn, h, good, [], DEFAULT)
+    assert out[0] is h  # within the noise: untouched
+    broken = good[0].copy()
+    step = n // 2
+    turn = np.array([0.0, 0.0, math.radians(40.0)])
+    c, s_ = math.cos(turn[2]), math.sin(turn[2])
+    rel = broken[step:, :2] - broken[step - 1, :2]
+    broken[step:, :2] = broken[step - 1, :2] + rel @ np.array([[c, s_], [-s_, c]])
+    broken[step:, 2] += turn[2]
+    assert _graph_chi2(m, broken) > limit
+    bad = (broken, *good[1:])
+    # A drawing whose nearest passes are the ones kept: nothing else to try, refused.
+    with pytest.raises(CorrectionRejected, match=r"chi2 would go from \d+ to \d+, beyond"):
+        _consistency_guard(m, poses, drawn, h, bad, [], DEFAULT)
+    # A first interpretation that kept other passes: the nearest ones are solved and applied.
+    other = dataclasses.replace(h, s_a=h.s_a[: max(1, len(h.s_a) // 2)])
+    h2, new, *_ = _consistency_guard(m, poses, drawn, other, bad, [], DEFAULT)
+    assert "nearest the drawings" in h2.notes[-1]
+    assert _graph_chi2(m, new) < limit

@@ -84,6 +84,10 @@ class Config:
     # widened by the disagreement, so a correction puts its error there (a heading fault)
     # instead of spreading it over the loop
     odometry_check: float = 10.83
+    # consistency guard: a correction after which the map's own measurements (its relative-pose
+    # factors) score a chi2 above this quantile of chi2 with 3 x edges dof is tried again with
+    # the passes nearest the drawings, then refused with the figures (0 = off)
+    consistency_guard: float = 0.999
     # §6 metric / occupancy export
     grid_resolution: float = 0.05  # [m]
     # §6 inconsistency metric: its robustness rules (without them a perfect map scores 100s m^2)

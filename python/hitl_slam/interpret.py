@@ -293,6 +293,7 @@ def interpret(
     config: Config = DEFAULT,
     *,
     visit_gap: int | None = None,
+    nearest_visits: bool = False,
 ) -> Interpretation:
     """What the person meant by ``drawn`` on the map shown with ``poses`` (ALGORITHM.md §3).
 
@@ -302,6 +303,8 @@ def interpret(
     pair rules: reject an empty set; keep one visit per segment (the one with most points,
     :data:`VISIT_GAP`); drop poses that see both; order the pair in time (``a`` is seen first,
     swapping if needed) or reject interleaved sets. Drawing direction does not matter.
+    ``nearest_visits``: choose both segments' visits jointly, each the pass nearest its drawing
+    (docs/ALGORITHM.md §I.2), even where the design's rules would keep the biggest.
 
     Raises:
         CorrectionRejected: the drawing cannot be turned into a correction (the reason says
@@ -392,14 +395,21 @@ def interpret(
     # (near copies in one EM line, a segment over several passes) are the visits chosen
     # jointly, which keeps every drawing the rules accept exactly as before.
     trial = list(notes)
-    try:
-        a2, b2 = dataclasses.replace(a), dataclasses.replace(b)
-        a, b, xa, xb, swapped = _pair_rules(a2, b2, visit_gap, trial)
+    if nearest_visits and not same_drawing:
+        # The passes nearest each drawing, even where the biggest ones would be kept.
+        if _joint_visits(a, b, map, poses, visit_gap, sigma_c, notes):
+            trial = notes
+        a, b, xa, xb, swapped = _pair_rules(a, b, visit_gap, trial)
         notes = trial
-    except CorrectionRejected:
-        if same_drawing or not _joint_visits(a, b, map, poses, visit_gap, sigma_c, notes):
-            raise
-        a, b, xa, xb, swapped = _pair_rules(a, b, visit_gap, notes)
+    else:
+        try:
+            a2, b2 = dataclasses.replace(a), dataclasses.replace(b)
+            a, b, xa, xb, swapped = _pair_rules(a2, b2, visit_gap, trial)
+            notes = trial
+        except CorrectionRejected:
+            if same_drawing or not _joint_visits(a, b, map, poses, visit_gap, sigma_c, notes):
+                raise
+            a, b, xa, xb, swapped = _pair_rules(a, b, visit_gap, notes)
 
     for note in notes:
         logger.debug("interpret: %s", note)

@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,6 +21,7 @@ from numpy.typing import NDArray
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.errors import CorrectionRejected
 from hitl_slam.map import Map, motion_model_information, to_world
 from hitl_slam.solve import robust_pairs
 
@@ -191,6 +194,66 @@ def _correct(
     return new_poses, lines, transform, report
 
 
+def chi2_limit(dof: int, probability: float) -> float:
+    """The ``probability`` quantile of chi2 with ``dof`` degrees of freedom (Wilson-Hilferty:
+    within 0.1% of the exact value from a few dozen dof on, which pose graphs always have)."""
+    z = NormalDist().inv_cdf(probability)
+    k = max(dof, 1)
+    return float(k * (1.0 - 2.0 / (9.0 * k) + z * math.sqrt(2.0 / (9.0 * k))) ** 3)
+
+
+def _consistency_guard(
+    map: Map,
+    current: FloatArray,
+    drawn: DrawnCorrection,
+    h: Interpretation,
+    solved: tuple[FloatArray, FloatArray, FloatArray, _core.SolveReport],
+    active: Sequence[Interpretation],
+    config: Config,
+) -> tuple[Interpretation, FloatArray, FloatArray, FloatArray, _core.SolveReport]:
+    """The guard of docs/ALGORITHM.md §I.6: a result whose odometry chi2 is beyond what the
+    odometry's own noise allows (``config.consistency_guard`` quantile, 3 dof per edge) is not
+    applied silently. It is tried again with each segment's pass nearest its drawing (where the
+    biggest pass was kept); if that is within the limit it is applied with a note, otherwise the
+    correction is refused with the figures."""
+    from hitl_slam.interpret import interpret
+
+    new_poses, lines, transform, report = solved
+    limit = chi2_limit(3 * map.edges.shape[0], config.consistency_guard)
+    before, cost = _graph_chi2(map, current), _graph_chi2(map, new_poses)
+    if cost <= max(limit, before):
+        return h, new_poses, lines, transform, report
+    logger.info("consistency guard: chi2 %.1f > %.1f; trying the nearest passes", cost, limit)
+    try:
+        alt = interpret(map, current, drawn, config, nearest_visits=True)
+    except CorrectionRejected:
+        alt = None
+    if alt is not None and not (np.array_equal(alt.s_a, h.s_a) and np.array_equal(alt.s_b, h.s_b)):
+        if h.mode is Mode.COLLINEAR and alt.mode is Mode.COLOCATION:
+            alt = dataclasses.replace(alt, mode=Mode.COLLINEAR)
+        alt_solved = _correct(map, current, alt, active, config)
+        alt_cost = _graph_chi2(map, alt_solved[0])
+        if alt_cost <= max(limit, before):
+            note = (
+                f"the passes kept first (poses {_span(h.x_a)} and {_span(h.x_b)}) would have "
+                f"put the robot's measurements at chi2 {cost:.0f}, beyond the {limit:.0f} their "
+                f"noise allows; the passes nearest the drawings give {alt_cost:.0f}"
+            )
+            logger.info("correction: %s", note)
+            return (dataclasses.replace(alt, notes=(*alt.notes, note)), *alt_solved)
+    raise CorrectionRejected(
+        f"applying it would contradict the robot's own measurements: their chi2 would go from "
+        f"{before:.0f} to {cost:.0f}, beyond the {limit:.0f} their noise allows (99.9% of chi2 "
+        f"with {3 * map.edges.shape[0]} dof) with the passes it selected (poses "
+        f"{_span(h.x_a)} and {_span(h.x_b)}); draw each segment along a longer, clearly "
+        "separate stretch of the copy you mean"
+    )
+
+
+def _span(poses: NDArray[np.int64]) -> str:
+    return f"{int(poses.min())}-{int(poses.max())}" if poses.size else "none"
+
+
 def apply_correction(
     map: Map,
     poses: FloatArray,
@@ -248,6 +311,10 @@ def apply_correction(
             logger.info("correction: %s", note)
             h = dataclasses.replace(alt, notes=(*alt.notes, note))
             new_poses, lines, transform, report = alt_poses, alt_lines, alt_transform, alt_report
+    if config.consistency_guard > 0:
+        h, new_poses, lines, transform, report = _consistency_guard(
+            map, current, drawn, h, (new_poses, lines, transform, report), active, config
+        )
     t2 = time.perf_counter()
     return CorrectionResult(
         poses=new_poses,
