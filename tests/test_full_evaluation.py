@@ -1,0 +1,118 @@
+"""The full evaluation of issue 11 (hitl-slam evaluate --full): fault models, the careful person,
+the per-drawing record and the report."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from hitl_slam.full_evaluation import LASER, Drawing, Run, evaluate_run, full_report, summary
+from hitl_slam.sim import parallel_corridors
+from hitl_slam.sim.careful import CarefulPerson
+from hitl_slam.sim.fault_models import FAULT_MODELS, bend, damaged, drift, jump, laps
+from hitl_slam.sim.odometry import HeadingDrift, HeadingJump
+
+needs_logs = pytest.mark.skipif(
+    not (LASER / "orebro-corrected.log.gz").is_file(),
+    reason="../shared/datasets/laser is not beside the repository",
+)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_fault_models_put_their_faults_where_they_say(seed: int) -> None:
+    truth = parallel_corridors(seed, heading_jump_deg=0.0).truth
+    n = truth.shape[0]
+    rng = np.random.default_rng(seed)
+    (j,) = jump(truth, rng)
+    assert isinstance(j, HeadingJump)
+    assert 0.3 * n <= j.pose < 0.7 * n
+    assert math.isclose(abs(j.angle), math.radians(30.0))
+    (d,) = drift(truth, rng)
+    assert isinstance(d, HeadingDrift)
+    travel = float(np.hypot(*np.diff(truth[:, :2], axis=0).T).sum())
+    assert math.isclose(abs(d.rate) * travel, math.radians(15.0), rel_tol=1e-9)
+    (b,) = bend(truth, rng)
+    assert isinstance(b, HeadingDrift)
+    heading = np.unwrap(truth[b.start : b.stop, 2])
+    assert np.max(np.abs(heading - heading[0])) <= math.radians(10.0) + 1e-9
+    two = laps(truth, rng)
+    assert len(two) == 2
+    assert all(isinstance(f, HeadingJump) for f in two)
+    assert two[0].pose < two[1].pose  # type: ignore[union-attr]
+    signs = {math.copysign(1.0, jump(truth, np.random.default_rng(s))[0].angle) for s in range(12)}
+    assert signs == {-1.0, 1.0}
+
+
+def test_the_careful_person_draws_true_statements_in_both_directions() -> None:
+    scenario = damaged(
+        parallel_corridors(3, heading_jump_deg=0.0),
+        jump(parallel_corridors(3, heading_jump_deg=0.0).truth, np.random.default_rng(3)),
+        5,
+    )
+    person = CarefulPerson(scenario, 4, endpoint_noise=0.15)
+    poses = scenario.map.poses
+    directions, count = set(), 0
+    for issue in person.inconsistencies(poses)[:12]:
+        drawn = person._draw_pair(poses, issue)
+        if drawn is None:
+            continue
+        count += 1
+        for seg, visit in ((drawn.a, issue.a), (drawn.b, issue.b)):
+            p0, p1 = np.asarray(seg)
+            # Drawn along the pass meant: its points lie near the stroke's line.
+            pts = person._points(poses, visit)
+            d = (p1 - p0) / np.hypot(*(p1 - p0))
+            off = np.abs((pts - p0) @ np.array([-d[1], d[0]]))
+            assert np.median(off) < 0.5
+            assert np.hypot(*(p1 - p0)) >= 8 * 0.15 - 1e-9
+            directions.add(bool(d @ np.array([1.0, 0.0]) > 0))
+    assert count >= 4
+    assert directions == {True, False}
+
+
+@needs_logs
+def test_a_run_records_every_drawing_and_the_report_shows_the_targets() -> None:
+    run = evaluate_run("Orebro", "jump", 0.05, seed=1, max_corrections=6)
+    assert isinstance(run, Run)
+    assert run.drawings
+    assert run.accepted <= 6
+    for d in run.drawings:
+        assert isinstance(d, Drawing)
+        assert d.accepted or d.reason
+        if not d.accepted:
+            assert d.ate[0] == d.ate[1]
+    # Each accepted drawing starts where the previous one ended.
+    accepted = [d for d in run.drawings if d.accepted]
+    for x, y in itertools.pairwise(accepted):
+        assert x.ate[1] == y.ate[0]
+    assert run.ate[1] < run.ate[0]  # a 30-degree jump repaired at least in part
+    text = full_report([run], "provenance line")
+    for needle in ("drawings accepted >= 95%", "## Refusals by reason", "### Orebro, jump, 5 cm"):
+        assert needle in text
+    s = summary([run])
+    assert s["drawings"] == len(run.drawings)
+
+
+@needs_logs
+def test_cli_full_writes_the_report_and_says_whether_targets_are_met(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from hitl_slam.cli import main
+
+    code = main(
+        ["evaluate", "--full", "--maps", "Orebro", "--faults", "bend", "-o", str(tmp_path), "-q"]
+    )
+    assert code in (0, 1)
+    text = (tmp_path / "full.md").read_text()
+    assert "| Orebro | bend | 5 |" in text
+    assert "| Orebro | bend | 15 |" in text
+    assert main(["evaluate", "--full", "--faults", "quake", "-o", str(tmp_path)]) == 2
+
+
+def test_unknown_fault_model_is_an_input_error() -> None:
+    from hitl_slam.errors import InputError
+
+    assert set(FAULT_MODELS) == {"jump", "drift", "bend", "laps"}
+    with pytest.raises(InputError, match="unknown fault model"):
+        evaluate_run("Orebro", "quake", 0.05)
