@@ -362,7 +362,7 @@ def interpret(
     ]
 
     for s in (a, b):
-        if s.rows.shape[0] == 0 and search > 0:
+        if s.rows.shape[0] == 0 and search > 0 and config.pass_by_pass:
             # A blur of passes that disagree a little each: find the one drawn on by itself.
             found = best_pass(
                 map,
