@@ -344,7 +344,7 @@ mod tests {
     /// A room's walls seen from `pose` (robot frame): points every 2 cm on a 6 x 4 m rectangle
     /// with a 1 m box, within 8 m.
     fn room(pose: [f64; 3]) -> Vec<[f64; 2]> {
-        let walls = [
+        let walls: [([f64; 2], [f64; 2]); 6] = [
             ([0.0, 0.0], [6.0, 0.0]),
             ([6.0, 0.0], [6.0, 4.0]),
             ([6.0, 4.0], [0.0, 4.0]),
@@ -355,7 +355,7 @@ mod tests {
         let (c, s) = (pose[2].cos(), pose[2].sin());
         let mut out = Vec::new();
         for (a, b) in walls {
-            let len = ((b[0] - a[0]) as f64).hypot(b[1] - a[1]);
+            let len: f64 = (b[0] - a[0]).hypot(b[1] - a[1]);
             let k = (len / 0.02) as usize;
             for i in 0..=k {
                 let t = i as f64 / k as f64;
