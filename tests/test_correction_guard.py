@@ -147,3 +147,12 @@ def test_a_result_beyond_the_odometry_noise_is_tried_again_or_refused(seed: int)
     h2, new, *_ = _consistency_guard(m, poses, drawn, other, bad, [], DEFAULT)
     assert "nearest the drawings" in h2.notes[-1]
     assert _graph_chi2(m, new) < limit
+
+
+@pytest.mark.parametrize("value", [1.0, 1.5, 99.0])
+def test_consistency_guard_must_be_a_probability(value: float) -> None:
+    from hitl_slam.errors import InputError
+
+    with pytest.raises(InputError, match="consistency_guard is a probability"):
+        DEFAULT.replace(consistency_guard=value)
+    assert DEFAULT.replace(consistency_guard=0.0).consistency_guard == 0.0

@@ -122,6 +122,11 @@ class Config:
                 raise InputError(f"config {name} must be > 0")
         if self.search_band > 0 and self.drawing_sigma <= 0:
             raise InputError("config drawing_sigma must be > 0 when search_band is > 0")
+        if not self.consistency_guard < 1:
+            raise InputError(
+                "config consistency_guard is a probability: 0 (off) or between 0 and 1, "
+                f"e.g. 0.999; got {self.consistency_guard!r}"
+            )
 
     def replace(self, **changes: Any) -> Config:
         """A copy with some constants changed (validated)."""
