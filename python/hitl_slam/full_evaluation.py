@@ -20,12 +20,12 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import CorrectionRejected, InputError
+from hitl_slam.evaluation import LASER, _nanmean
 
 __all__ = [
     "FULL_MAPS",
@@ -37,7 +37,6 @@ __all__ = [
     "summary",
 ]
 
-LASER = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "laser"
 
 REAL_LOGS = (
     ("intel-corrected.log.gz", "Intel lab"),
@@ -137,11 +136,6 @@ def _base_scenario(label: str, seed: int) -> object:
     return builders[label](seed)
 
 
-def _mean(values: np.ndarray) -> float:
-    finite = values[np.isfinite(values)]
-    return float(finite.mean()) if finite.size else math.nan
-
-
 def _reason(message: str) -> str:
     """A refusal message without its figures, to count refusals by kind."""
     text = re.sub(r"\([^)]*\)", "", message.split(";")[0])
@@ -196,7 +190,7 @@ def evaluate_run(
     truth = scenario.truth
 
     def angle(poses: np.ndarray) -> float:
-        return _mean(scenario.errors(poses).angular)
+        return _nanmean(scenario.errors(poses).angular)
 
     def score(poses: np.ndarray, like: object = None) -> tuple[float, float, object]:
         inc = inconsistency(m, poses, config, like=like)  # type: ignore[arg-type]
@@ -258,7 +252,7 @@ def evaluate_run(
         poses=m.num_poses,
         drawings=tuple(drawings),
         angle=(first[1], ang0),
-        spacing=(_mean(e0.translational), _mean(e1.translational)),
+        spacing=(_nanmean(e0.translational), _nanmean(e1.translational)),
         ate=(first[0], ate0),
         inconsistency=(first[2].total_m2, inc0.total_m2),  # type: ignore[attr-defined]
         inconsistency_truth=inc_truth.total_m2,
@@ -317,11 +311,11 @@ def summary(runs: Sequence[Run]) -> dict[str, float]:
         "accepted_share": len(accepted) / len(drawings) if drawings else math.nan,
         "worse": float(sum(d.worse for d in accepted)),
         "worse_beyond_noise": float(sum(d.worse_beyond_noise for d in accepted)),
-        "achieved": _mean(np.array([r.achieved_fraction for r in runs])),
-        "angle_after": _mean(np.array([r.angle[1] for r in runs])),
-        "spacing_after": _mean(np.array([r.spacing[1] for r in runs])),
-        "angle_before": _mean(np.array([r.angle[0] for r in runs])),
-        "spacing_before": _mean(np.array([r.spacing[0] for r in runs])),
+        "achieved": _nanmean(np.array([r.achieved_fraction for r in runs])),
+        "angle_after": _nanmean(np.array([r.angle[1] for r in runs])),
+        "spacing_after": _nanmean(np.array([r.spacing[1] for r in runs])),
+        "angle_before": _nanmean(np.array([r.angle[0] for r in runs])),
+        "spacing_before": _nanmean(np.array([r.spacing[0] for r in runs])),
     }
 
 

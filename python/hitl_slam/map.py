@@ -53,6 +53,27 @@ def to_world(
     return out
 
 
+def chain_steps(poses: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(N - 1, 3)`` steps ``x_k^-1 x_(k+1)`` between consecutive poses ``(N, 3)``, heading
+    wrapped to [-pi, pi)."""
+    a, b = poses[:-1], poses[1:]
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+    dth = np.mod(b[:, 2] - a[:, 2] + np.pi, 2 * np.pi) - np.pi
+    return np.stack([c * dx + s * dy, -s * dx + c * dy, dth], axis=1)
+
+
+def compose(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Rows of ``a * b`` for one pose ``a`` (3,) and rows ``b`` (K, 3), heading in (-pi, pi]."""
+    c, s = np.cos(a[2]), np.sin(a[2])
+    theta = b[:, 2] + a[2]
+    theta = np.where(theta > np.pi, theta - 2 * np.pi, theta)
+    theta = np.where(theta <= -np.pi, theta + 2 * np.pi, theta)
+    return np.stack(
+        [a[0] + c * b[:, 0] - s * b[:, 1], a[1] + s * b[:, 0] + c * b[:, 1], theta], axis=1
+    )
+
+
 @dataclass(eq=False)
 class Map:
     """A 2D laser map.
@@ -202,11 +223,7 @@ class Map:
         nrm = None
         if normals is not None:
             nrm = np.concatenate([np.asarray(v, dtype=np.float64).reshape(-1, 2) for v in normals])
-        a, b = poses[:-1], poses[1:]
-        c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-        dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-        dth = np.mod(b[:, 2] - a[:, 2] + np.pi, 2 * np.pi) - np.pi
-        z = np.stack([c * dx + s * dy, -s * dx + c * dy, dth], axis=1)
+        z = chain_steps(poses)
         info = motion_model_information(z, config)
         source_kind = np.full(n - 1, InformationSource.MOTION_MODEL, dtype=np.int8)
         if covariances is not None:

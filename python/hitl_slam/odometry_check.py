@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.map import Map
+from hitl_slam.map import Map, chain_steps, compose
 
 __all__ = ["OdometryCheck", "check_odometry", "checked_map"]
 
@@ -54,25 +54,6 @@ def _chain_rows(map: Map) -> NDArray[np.int64]:
     return rows
 
 
-def _between(poses: FloatArray) -> FloatArray:
-    a, b = poses[:-1], poses[1:]
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-    dth = np.angle(np.exp(1j * (b[:, 2] - a[:, 2])))
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, dth], axis=1)
-
-
-def _compose(a: FloatArray, b: FloatArray) -> FloatArray:
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return np.array(
-        [
-            a[0] + c * b[0] - s * b[1],
-            a[1] + s * b[0] + c * b[1],
-            math.remainder(a[2] + b[2], 2 * math.pi),
-        ]
-    )
-
-
 def _confirmed(map: Map, steps: FloatArray, k: int, r: float, config: Config) -> bool:
     """Whether the scans two steps apart across step k (k-1 -> k+1 and k -> k+2) tell the same:
     at least one such match found, and every one found disagrees with the odometry's two-step
@@ -87,7 +68,7 @@ def _confirmed(map: Map, steps: FloatArray, k: int, r: float, config: Config) ->
             continue
         pts = [map.points[map.offsets[p] : map.offsets[p + 1]] for p in (i, j)]
         offsets = np.array([0, len(pts[0]), len(pts[0]) + len(pts[1])], dtype=np.int64)
-        guess = _compose(steps[i], steps[i + 1]).reshape(1, 3)
+        guess = compose(steps[i], steps[i + 1].reshape(1, 3))
         ok, found, cov, _ = _core.match_consecutive(
             np.ascontiguousarray(np.concatenate(pts)), offsets, np.ascontiguousarray(guess)
         )
@@ -111,7 +92,7 @@ def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
     gyro, a wheel slip while turning) are the ones that bend a whole map. A step is widened only
     when the matches two steps apart across it confirm the fault (:func:`_confirmed`)."""
     rows = _chain_rows(map)
-    guesses = _between(map.poses)
+    guesses = chain_steps(map.poses)
     has_edge = rows >= 0
     guesses[has_edge] = map.measurements[rows[has_edge]]
     guesses = np.ascontiguousarray(guesses, dtype=np.float64)

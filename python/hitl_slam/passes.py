@@ -82,7 +82,8 @@ def best_pass(
     near = np.flatnonzero((np.abs(across) <= search) & (along >= -0.3) & (along <= length + 0.3))
     if near.size < min_points:
         return None
-    owner = map.pose_of_point()[near]
+    owner_of = map.pose_of_point()
+    owner = owner_of[near]
     order = np.argsort(owner, kind="stable")
     near, owner = near[order], owner[order]
     starts = np.concatenate([[0], np.flatnonzero(np.diff(owner) > gap) + 1, [owner.size]])
@@ -116,7 +117,7 @@ def best_pass(
             continue  # a crossing wall, not the one drawn along
         score = math.log(n_in) - offset**2 / (2 * closeness**2) - turn**2 / (2 * sigma_t**2)
         sel = idx[inlier]
-        pose = map.pose_of_point()[sel]
+        pose = owner_of[sel]
         rows = np.stack([pose, sel - map.offsets[pose]], axis=1).astype(np.int64)
         found.append((score, rows, (int(who[0]), int(who[-1])), offset, turn))
     if not found:

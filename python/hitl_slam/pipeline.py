@@ -22,7 +22,7 @@ from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected
-from hitl_slam.map import Map, motion_model_information, to_world
+from hitl_slam.map import Map, chain_steps, compose, motion_model_information, to_world
 from hitl_slam.solve import robust_pairs
 
 __all__ = [
@@ -56,26 +56,10 @@ class CorrectionResult:
     time_solve_s: float
 
 
-def _compose(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Rows of a * b for a single pose a (3,) and rows b (K, 3)."""
-    c, s = np.cos(a[2]), np.sin(a[2])
-    theta = b[:, 2] + a[2]
-    theta = np.where(theta > np.pi, theta - 2 * np.pi, theta)
-    theta = np.where(theta <= -np.pi, theta + 2 * np.pi, theta)
-    return np.stack(
-        [a[0] + c * b[:, 0] - s * b[:, 1], a[1] + s * b[:, 0] + c * b[:, 1], theta], axis=1
-    )
-
-
 def chain_variances(map: Map) -> tuple[FloatArray, FloatArray]:
     """Rotational and isotropic translational variance of each chain edge k -> k+1 (N-1,),
     from the map's own edge information, or the motion model where the chain has no edge."""
-    p = map.poses
-    c, s = np.cos(p[:-1, 2]), np.sin(p[:-1, 2])
-    dx, dy = p[1:, 0] - p[:-1, 0], p[1:, 1] - p[:-1, 1]
-    z = np.stack(
-        [c * dx + s * dy, -s * dx + c * dy, np.angle(np.exp(1j * (p[1:, 2] - p[:-1, 2])))], 1
-    )
+    z = chain_steps(map.poses)
     cov = np.linalg.inv(motion_model_information(z, DEFAULT))
     e = map.edges
     forward = e[:, 1] == e[:, 0] + 1
@@ -158,7 +142,7 @@ def explicit_and_backpropagate(
     )
     first = int(h.x_b.min())
     moved = poses.copy()
-    moved[first:] = _compose(transform, poses[first:])
+    moved[first:] = compose(transform, poses[first:])
     last_a = int(h.x_a.max())
     if first > last_a + 1:
         rot, trans = chain_variances(map)
@@ -166,10 +150,11 @@ def explicit_and_backpropagate(
     return moved, transform
 
 
-def _graph_chi2(map: Map, poses: FloatArray) -> float:
-    """chi2 of the map's relative-pose factors alone (the robot's measurements) at ``poses``."""
-    engine = _core.Graph(poses.shape[0], map.edges, map.measurements, map.information, map.anchor)
-    return float(engine.chi2(np.ascontiguousarray(poses, dtype=np.float64)))
+def _graph_chi2(map: Map, *poses: FloatArray) -> list[float]:
+    """chi2 of the map's relative-pose factors alone (the robot's measurements) at each of
+    ``poses`` (one graph built for all)."""
+    engine = _core.Graph(map.num_poses, map.edges, map.measurements, map.information, map.anchor)
+    return [float(engine.chi2(np.ascontiguousarray(p, dtype=np.float64))) for p in poses]
 
 
 def _stretch(map: Map, poses: FloatArray, rows: NDArray[np.int64]) -> float:
@@ -217,7 +202,7 @@ def _consistency_guard(
     applied silently. It is tried again with each segment's pass nearest its drawing (where the
     biggest pass was kept); if that is within the limit it is applied with a note, otherwise the
     correction is refused with the figures."""
-    from hitl_slam.interpret import interpret
+    from hitl_slam.interpret import _span, interpret
 
     new_poses, lines, transform, report = solved
     dof = 3 * map.edges.shape[0]
@@ -225,7 +210,7 @@ def _consistency_guard(
     # Once earlier corrections have put the map near or past the limit (a drift beyond what
     # the motion model states), one correction may still add what chi2's own spread allows.
     step = NormalDist().inv_cdf(config.consistency_guard) * math.sqrt(2.0 * dof)
-    before, cost = _graph_chi2(map, current), _graph_chi2(map, new_poses)
+    before, cost = _graph_chi2(map, current, new_poses)
     allowed = max(limit, before + step)
     if cost <= allowed:
         return h, new_poses, lines, transform, report
@@ -238,7 +223,7 @@ def _consistency_guard(
         if h.mode is Mode.COLLINEAR and alt.mode is Mode.COLOCATION:
             alt = dataclasses.replace(alt, mode=Mode.COLLINEAR)
         alt_solved = _correct(map, current, alt, active, config)
-        alt_cost = _graph_chi2(map, alt_solved[0])
+        (alt_cost,) = _graph_chi2(map, alt_solved[0])
         if alt_cost <= allowed:
             note = (
                 f"the passes kept first (poses {_span(h.x_a)} and {_span(h.x_b)}) would have "
@@ -254,10 +239,6 @@ def _consistency_guard(
         f"{_span(h.x_a)} and {_span(h.x_b)}); draw each segment along a longer, clearly "
         "separate stretch of the copy you mean"
     )
-
-
-def _span(poses: NDArray[np.int64]) -> str:
-    return f"{int(poses.min())}-{int(poses.max())}" if poses.size else "none"
 
 
 def apply_correction(
@@ -306,7 +287,7 @@ def apply_correction(
         alt_poses, alt_lines, alt_transform, alt_report = _correct(
             map, current, alt, active, config
         )
-        cost, alt_cost = _graph_chi2(map, new_poses), _graph_chi2(map, alt_poses)
+        cost, alt_cost = _graph_chi2(map, new_poses, alt_poses)
         logger.debug("colocation guard: chi2 %.2f as colocation, %.2f as collinear", cost, alt_cost)
         if cost - alt_cost > config.colocation_guard:
             note = (
