@@ -1,6 +1,7 @@
 """The odometry checked against the scans (hitl_slam.odometry_check): a heading fault is found
 at the step where it happened and nowhere else, across seeds, sizes and signs; slow drift is not
-mistaken for a fault; and a correction across the fault puts the turn there."""
+mistaken for a fault; the faulty step is re-measured from the scans; and a correction across the
+fault puts the turn there."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from hitl_slam.config import DEFAULT
 from hitl_slam.odometry_check import check_odometry, checked_map
 from hitl_slam.sim import HeadingDrift, HeadingJump, parallel_corridors
 from hitl_slam.sim.fault_models import damaged
+from hitl_slam.sim.odometry import relative_motions
 
 
 @pytest.mark.parametrize(
@@ -30,10 +32,19 @@ def test_a_heading_jump_is_found_at_its_step_and_only_there(
     assert check.matched.mean() > 0.8
     steps = scenario.map.edges[check.relaxed, 0].tolist()
     assert steps == [pose - 1]
-    # Widened by about the jump: the step's heading sigma is now of the jump's size.
-    info = check.information[check.relaxed[0]]
-    sigma = math.sqrt(np.linalg.inv(info)[2, 2])
-    assert 0.7 * abs(math.radians(degrees)) < sigma < 1.3 * abs(math.radians(degrees))
+    # The step's turn is now the scans': within a degree and a half of the true turn (it was off
+    # by the whole jump), with the scan match's variance; its translation stays the odometry's.
+    row = int(check.relaxed[0])
+    true_turn = float(relative_motions(base.truth)[pose - 1, 2])
+    off = math.degrees(math.remainder(float(check.measurements[row, 2]) - true_turn, 2 * math.pi))
+    assert abs(off) < 1.5
+    was = math.degrees(math.remainder(float(scenario.map.measurements[row, 2]) - true_turn, 2 * math.pi))
+    assert abs(was - degrees) < 1.5
+    sigma = math.degrees(math.sqrt(np.linalg.inv(check.information[row])[2, 2]))
+    assert 0.5 <= sigma < 5.0
+    assert np.array_equal(check.measurements[row, :2], scenario.map.measurements[row, :2])
+    others = np.delete(np.arange(scenario.map.edges.shape[0]), row)
+    assert np.array_equal(check.measurements[others], scenario.map.measurements[others])
 
 
 def test_slow_drift_widens_nothing_and_the_check_can_be_turned_off() -> None:
@@ -49,12 +60,12 @@ def test_slow_drift_widens_nothing_and_the_check_can_be_turned_off() -> None:
     assert checked_map(jumped.map) is checked  # computed once
     assert np.array_equal(checked.poses, jumped.map.poses)
     assert not np.array_equal(checked.information, jumped.map.information)
+    assert not np.array_equal(checked.measurements, jumped.map.measurements)
 
 
 @pytest.mark.parametrize("seed", [5, 6])
 def test_a_correction_across_the_jump_turns_the_map_at_the_jump(seed: int) -> None:
     from hitl_slam.sim import SimulatedHuman, repair
-    from hitl_slam.sim.odometry import relative_motions
 
     base = parallel_corridors(seed, heading_jump_deg=0.0)
     n = base.map.num_poses

@@ -164,6 +164,30 @@ def test_back_propagation_closes_the_gap_exactly(world: World) -> None:
     assert np.abs(moved[start + 1 : end] - m.poses[start + 1 : end]).max() > 1e-3
 
 
+def test_a_step_shown_off_its_measurement_takes_more_of_the_next_correction(world: World) -> None:
+    """Back-propagation shares an error by how far each displayed step may be from the truth:
+    a step whose displayed turn differs from its edge's measurement (re-measured by the odometry
+    check, or bent by an earlier correction) has its rotational variance widened by the squared
+    difference; steps shown as measured keep the edge's own variance."""
+    m = world.map
+    rot0, trans0 = chain_variances(m)
+    assert np.allclose(chain_variances(m, m.poses)[0], rot0)
+    k = m.num_poses // 3
+    turned = m.poses.copy()
+    turn = math.radians(7.0)
+    # Rotate the poses after k about pose k's position: step k -> k+1 turns by `turn` more.
+    c, s = math.cos(turn), math.sin(turn)
+    d = turned[k + 1 :, :2] - turned[k, :2]
+    turned[k + 1 :, 0] = turned[k, 0] + c * d[:, 0] - s * d[:, 1]
+    turned[k + 1 :, 1] = turned[k, 1] + s * d[:, 0] + c * d[:, 1]
+    turned[k + 1 :, 2] += turn
+    # (Its translation in pose k's frame changes too; the rotational variance ignores that.)
+    rot, trans = chain_variances(m, turned)
+    assert rot[k] == pytest.approx(rot0[k] + turn**2, rel=1e-6)
+    assert np.allclose(np.delete(rot, k), np.delete(rot0, k))
+    assert np.array_equal(trans, trans0)
+
+
 def test_newest_correction_changes_the_solution(world: World) -> None:
     """The released code rebuilt odometry from the current estimate, so a new correction barely
     moved anything. Here each correction must move the map, and the result must hold both."""

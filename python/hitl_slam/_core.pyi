@@ -49,8 +49,10 @@ def match_consecutive(
     guesses: NDArray[np.float64],
     *,
     search_deg: float = 45.0,
+    min_overlap: float = 0.25,
 ) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Scan k+1 matched against scan k from guesses[k]: (ok, poses, covariances, overlap)."""
+    """Scan k+1 matched against scan k from guesses[k]: (ok, poses, covariances, overlap); ok
+    where at least ``min_overlap`` of scan k+1's points (and 25) pair with scan k's lines."""
 
 @final
 class IterationRecord:

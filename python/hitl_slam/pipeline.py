@@ -56,9 +56,15 @@ class CorrectionResult:
     time_solve_s: float
 
 
-def chain_variances(map: Map) -> tuple[FloatArray, FloatArray]:
+def chain_variances(map: Map, poses: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
     """Rotational and isotropic translational variance of each chain edge k -> k+1 (N-1,),
-    from the map's own edge information, or the motion model where the chain has no edge."""
+    from the map's own edge information, or the motion model where the chain has no edge.
+
+    With ``poses`` (the map as displayed), a step whose turn there differs from its edge's
+    measurement (a step the odometry check re-measured from the scans, or one an earlier
+    correction already bent) has its rotational variance widened by the squared difference:
+    how far the displayed step may be from the truth, which is what back-propagation shares
+    the error by."""
     z = chain_steps(map.poses)
     cov = np.linalg.inv(motion_model_information(z, DEFAULT))
     e = map.edges
@@ -68,6 +74,10 @@ def chain_variances(map: Map) -> tuple[FloatArray, FloatArray]:
     if np.any(chain):
         k = np.where(forward, e[:, 0], e[:, 1])[chain]
         cov[k] = np.linalg.inv(map.information[chain])
+        if poses is not None:
+            shown = chain_steps(np.asarray(poses, dtype=np.float64))[k, 2]
+            measured = np.where(forward, 1.0, -1.0)[chain] * map.measurements[chain, 2]
+            cov[k, 2, 2] += (np.remainder(shown - measured + np.pi, 2 * np.pi) - np.pi) ** 2
     rot = np.ascontiguousarray(cov[:, 2, 2])
     trans = np.ascontiguousarray(0.5 * (cov[:, 0, 0] + cov[:, 1, 1]))
     return rot, trans
@@ -145,7 +155,7 @@ def explicit_and_backpropagate(
     moved[first:] = compose(transform, poses[first:])
     last_a = int(h.x_a.max())
     if first > last_a + 1:
-        rot, trans = chain_variances(map)
+        rot, trans = chain_variances(map, poses)
         moved = _core.backpropagate(moved, poses, last_a, first, rot, trans)
     return moved, transform
 

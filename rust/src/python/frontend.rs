@@ -10,10 +10,11 @@ use crate::frontend::{match_chain, IcpParams};
 
 /// Matches every scan `k + 1` against scan `k` (robot-frame `points` `(P, 2)`, `offsets`
 /// `(N + 1,)`) from `guesses[k]` `(N - 1, 3)` (the odometry's `x_k^-1 x_(k+1)`), trying
-/// rotations within `search_deg` of each guess. Returns `(ok (N - 1,) bool, poses (N - 1, 3),
-/// covariances (N - 1, 3, 3), overlap (N - 1,))`.
+/// rotations within `search_deg` of each guess. A match is `ok` when at least `min_overlap` of
+/// scan `k + 1`'s points (and 25) pair with lines of scan `k`. Returns `(ok (N - 1,) bool,
+/// poses (N - 1, 3), covariances (N - 1, 3, 3), overlap (N - 1,))`.
 #[pyfunction]
-#[pyo3(signature = (points, offsets, guesses, *, search_deg = 45.0))]
+#[pyo3(signature = (points, offsets, guesses, *, search_deg = 45.0, min_overlap = 0.25))]
 #[allow(clippy::type_complexity)]
 fn match_consecutive<'py>(
     py: Python<'py>,
@@ -21,6 +22,7 @@ fn match_consecutive<'py>(
     offsets: PyReadonlyArray1<'py, i64>,
     guesses: PyReadonlyArray2<'py, f64>,
     search_deg: f64,
+    min_overlap: f64,
 ) -> PyResult<(
     Bound<'py, PyArray1<bool>>,
     Bound<'py, PyArray2<f64>>,
@@ -30,8 +32,12 @@ fn match_consecutive<'py>(
     if !(search_deg.is_finite() && (0.0..=180.0).contains(&search_deg)) {
         return Err(to_py(py, input_err("search_deg must be within 0..180")));
     }
+    if !(min_overlap.is_finite() && (0.0..=1.0).contains(&min_overlap)) {
+        return Err(to_py(py, input_err("min_overlap must be within 0..1")));
+    }
     let params = IcpParams {
         search: search_deg.to_radians(),
+        min_overlap,
         ..IcpParams::default()
     };
     let (points, offsets, guesses) = (points.as_array(), offsets.as_array(), guesses.as_array());
