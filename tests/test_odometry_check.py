@@ -38,7 +38,9 @@ def test_a_heading_jump_is_found_at_its_step_and_only_there(
     true_turn = float(relative_motions(base.truth)[pose - 1, 2])
     off = math.degrees(math.remainder(float(check.measurements[row, 2]) - true_turn, 2 * math.pi))
     assert abs(off) < 1.5
-    was = math.degrees(math.remainder(float(scenario.map.measurements[row, 2]) - true_turn, 2 * math.pi))
+    was = math.degrees(
+        math.remainder(float(scenario.map.measurements[row, 2]) - true_turn, 2 * math.pi)
+    )
     assert abs(was - degrees) < 1.5
     sigma = math.degrees(math.sqrt(np.linalg.inv(check.information[row])[2, 2]))
     assert 0.5 <= sigma < 5.0

@@ -8,7 +8,8 @@ meant), this person is harder on the interpreter: every endpoint is off by Gauss
 ``endpoint_noise`` (5 or 15 cm) whatever the gap to the next copy, every segment is drawn in a
 random direction, the drawing's accuracy is the default ``sigma_h``, and where both passes saw the
 same stretch of a wall (the same two ends) they say so with a colocation instead of a collinear
-pair.
+pair. They draw only copies that look like walls on the map shown (not smears: see
+``_SMEAR_RMS_M``).
 """
 
 from __future__ import annotations
@@ -106,7 +107,8 @@ class CarefulPerson(SimulatedHuman):
     def _segment(self, poses: FloatArray, visit: Visit, *, whole: bool) -> list[list[float]] | None:
         pts = self._points(poses, visit)
         fit = fit_points(pts)
-        if float(np.sqrt(np.mean(((pts - np.asarray(fit.centre)) @ fit.normal) ** 2))) > _SMEAR_RMS_M:
+        off_line = (pts - np.asarray(fit.centre)) @ fit.normal
+        if float(np.sqrt(np.mean(off_line**2))) > _SMEAR_RMS_M:
             return None  # a smear, not a wall
         if whole:
             direction = np.array([-fit.normal[1], fit.normal[0]])
