@@ -67,6 +67,7 @@ class Drawing:
     angle: tuple[float, float]  # mean wall-angle error before, after [deg]
     inconsistency: tuple[float, float]  # before, after [m^2]
     time_s: float
+    meant: bool | None = None  # accepted: each segment selected poses of the pass it was drawn on
 
     @property
     def worse(self) -> bool:
@@ -157,6 +158,21 @@ def _describe(faults: Sequence[object]) -> str:
     return "; ".join(parts)
 
 
+def _selected_meant(h: object, issue: object) -> bool | None:
+    """Whether interpretation ``h`` kept, for each segment, poses of the pass the person drew
+    it on (``issue``: :class:`~hitl_slam.sim.human.Inconsistency`, either order); None when
+    the person's intent is unknown."""
+    if issue is None:
+        return None
+    a, b = issue.a, issue.b  # type: ignore[attr-defined]
+    xa, xb = h.x_a, h.x_b  # type: ignore[attr-defined]
+
+    def on(x: np.ndarray, v: object) -> bool:
+        return bool(np.any((x >= v.first) & (x <= v.last)))  # type: ignore[attr-defined]
+
+    return (on(xa, a) and on(xb, b)) or (on(xa, b) and on(xb, a))
+
+
 def evaluate_run(
     label: str,
     fault: str,
@@ -227,6 +243,7 @@ def evaluate_run(
                 )
                 continue
             spent = time.perf_counter() - t0
+            meant = _selected_meant(session.active[-1], person.last)
             poses = np.array(session.poses)
             ate1, ang1, inc1 = score(poses, like=first[2])
             drawings.append(
@@ -238,6 +255,7 @@ def evaluate_run(
                     (ang0, ang1),
                     (inc0.total_m2, inc1.total_m2),  # type: ignore[attr-defined]
                     spent,
+                    meant,
                 )
             )
             ate0, ang0, inc0 = ate1, ang1, inc1
@@ -311,6 +329,10 @@ def summary(runs: Sequence[Run]) -> dict[str, float]:
         "accepted_share": len(accepted) / len(drawings) if drawings else math.nan,
         "worse": float(sum(d.worse for d in accepted)),
         "worse_beyond_noise": float(sum(d.worse_beyond_noise for d in accepted)),
+        "meant": float(sum(d.meant is True for d in accepted)),
+        "worse_beyond_noise_meant": float(
+            sum(d.worse_beyond_noise and d.meant is True for d in accepted)
+        ),
         "achieved": _nanmean(np.array([r.achieved_fraction for r in runs])),
         "angle_after": _nanmean(np.array([r.angle[1] for r in runs])),
         "spacing_after": _nanmean(np.array([r.spacing[1] for r in runs])),
@@ -382,6 +404,11 @@ def full_report(runs: Sequence[Run], provenance: str) -> str:
         f"| mean corrected translational (spacing) error <= 0.03 m | {s['spacing_after']:.3f} m "
         f"(before {s['spacing_before']:.3f}) | {met(ok['spacing'])} |",
         "",
+        f"Of the {s['accepted']:.0f} accepted corrections, {s['meant']:.0f} kept, for each "
+        "segment, poses of the pass it was drawn on (the others selected a different pass of",
+        f"the same wall); {s['worse_beyond_noise_meant']:.0f} of the "
+        f"{s['worse_beyond_noise']:.0f} worse beyond the noise did.",
+        "",
         "## Runs",
         "",
         "| map | fault | noise (cm) | poses | drawings | accepted | worse | worse beyond noise "
@@ -416,6 +443,7 @@ def full_report(runs: Sequence[Run], provenance: str) -> str:
         for k, d in enumerate(r.drawings, 1):
             outcome = (
                 ("accepted, **worse**" if d.worse else "accepted")
+                + (", another pass selected" if d.meant is False else "")
                 if d.accepted
                 else ("refused: " + d.reason.replace("|", "/"))
             )
