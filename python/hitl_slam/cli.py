@@ -638,7 +638,7 @@ def _evaluate_full(args: argparse.Namespace, out: Path) -> int:
     atomic_write_text(out / "full.json", runs_json(runs))
     s = summary(runs)
     print(
-        f"accepted {100 * s['accepted_share']:.1f}% of {s['drawings']:.0f} drawings, "
+        f"accepted {100 * s['accepted_share']:.2f}% of {s['drawings']:.0f} drawings, "
         f"{s['worse']:.0f} made their map worse ({s['worse_beyond_noise']:.0f} beyond the noise), "
         f"{100 * s['achieved']:.0f}% of the achievable "
         f"inconsistency reduction, angle {s['angle_after']:.2f} deg, "

@@ -392,7 +392,7 @@ def full_report(runs: Sequence[Run], provenance: str) -> str:
         "",
         "| target | measured | met |",
         "|---|---|---|",
-        f"| drawings accepted >= 95% | {100 * s['accepted_share']:.1f}% "
+        f"| drawings accepted >= 95% | {100 * s['accepted_share']:.2f}% "
         f"({s['accepted']:.0f} of {s['drawings']:.0f}) | {met(ok['accepted'])} |",
         f"| accepted corrections raising ATE or mean wall-angle error > 5% = 0 "
         f"| {s['worse']:.0f} of {s['accepted']:.0f} ({s['worse_beyond_noise']:.0f} of them also "

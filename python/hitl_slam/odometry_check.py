@@ -37,6 +37,12 @@ tenth of a degree with only 13-20% of its points on lines; at the scan matcher's
 (25%) those steps, a jump among them, went unchecked. A contradiction is still acted on only when
 the matches across the step confirm it (:func:`_confirmed`)."""
 
+CONFIRM_OVERLAP = 0.25
+"""The confirming matches, two steps apart, count from this overlap: every one that counts must
+agree, and a loosely overlapping one that matched wrongly would veto a real fault (Orebro with a
+30-degree jump: at 10% the jump went unconfirmed and the first correction left the walls 24
+degrees off)."""
+
 
 @dataclass(frozen=True)
 class OdometryCheck:
@@ -81,7 +87,7 @@ def _confirmed(map: Map, steps: FloatArray, k: int, r: float, config: Config) ->
             np.ascontiguousarray(np.concatenate(pts)),
             offsets,
             np.ascontiguousarray(guess),
-            min_overlap=MIN_OVERLAP,
+            min_overlap=CONFIRM_OVERLAP,
         )
         if not ok[0]:
             continue
