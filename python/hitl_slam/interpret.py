@@ -17,7 +17,7 @@ from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Segment
 from hitl_slam.errors import CorrectionRejected, InputError
-from hitl_slam.map import Map, to_world
+from hitl_slam.map import Map
 from hitl_slam.passes import best_pass
 
 __all__ = ["MIN_SEGMENT_LENGTH", "TOLERANCE_MIXING", "VISIT_GAP", "interpret"]
@@ -49,7 +49,6 @@ class _Selection:
     fit: _core.EmFit
     rows: NDArray[np.int64]  # (K, 2) (pose, point index within that pose's scan)
     weights: NDArray[np.float64]  # (K,) EM responsibilities of those rows
-    on_line: int  # candidates selected as on the line, before the per-pose rule
 
     @property
     def poses(self) -> NDArray[np.int64]:
@@ -90,49 +89,28 @@ def _select(
     fit: _core.EmFit,
     offsets: NDArray[np.int64],
     min_points: int,
-    gate: tuple[NDArray[np.float64], NDArray[np.float64], float] | None = None,
 ) -> _Selection:
     """S = candidates with w > 0.5, as (pose, point) rows, restricted to the poses that own at
-    least ``min_points`` of them (T_p, the paper's outlier rejection).
-
-    ``gate`` = (poses, points, r_max): where the segment was snapped onto a line, a candidate
-    within ``r_max`` of the fitted line is in S too (docs/ALGORITHM.md §I.7): more likely on the
-    line than clutter at even odds, whatever share of the band the line holds. The visit rules
-    that follow keep one pass, so other passes' points taken in here are dropped there."""
+    least ``min_points`` of them (T_p, the paper's outlier rejection)."""
     inlier = fit.weights > 0.5
-    if gate is not None and fit.snap is not None and fit.candidates.size:
-        poses, points, r_max = gate
-        cand = fit.candidates
-        owner = np.searchsorted(offsets, cand, side="right").astype(np.int64) - 1
-        world = to_world(poses, owner, points[cand])
-        r = world @ np.array([math.cos(fit.phi), math.sin(fit.phi)]) - fit.rho
-        inlier |= np.abs(r) < r_max
     index = fit.candidates[inlier]
     # side="right" skips poses with empty scans (equal consecutive offsets).
     pose = np.searchsorted(offsets, index, side="right").astype(np.int64) - 1
     rows = np.stack([pose, index - offsets[pose]], axis=1).astype(np.int64)
-    sel = _Selection(name, drawn, fit, rows, fit.weights[inlier], int(index.size))
+    sel = _Selection(name, drawn, fit, rows, fit.weights[inlier])
     owners, counts = np.unique(pose, return_counts=True)
     sel.keep_poses(owners[counts >= min_points])
     return sel
-
-
-def even_odds_gate(sigma_em: float, band: float) -> float:
-    """The distance [m] within which a point is more likely on a line (Gaussian, ``sigma_em``)
-    than clutter spread evenly over the band (``2 band`` wide): ``N(r; sigma) > 1 / (2 band)``.
-    Zero where even a point on the line is not (a band narrower than the line's spread)."""
-    ratio = 2.0 * band / (math.sqrt(2.0 * math.pi) * sigma_em)
-    return sigma_em * math.sqrt(2.0 * math.log(ratio)) if ratio > 1.0 else 0.0
 
 
 def _why_empty(sel: _Selection, band: float, min_points: int) -> str:
     fit = sel.fit
     if fit.candidates.size == 0:
         return f"no map points within {band:.2f} m of segment {sel.name}"
-    if sel.on_line == 0:
+    if fit.num_inliers == 0:
         return f"{fit.candidates.size} points near segment {sel.name}, none of them on one line"
     return (
-        f"{sel.on_line} points on the line under segment {sel.name}, but no pose saw "
+        f"{fit.num_inliers} points on the line under segment {sel.name}, but no pose saw "
         f"{min_points} or more of them"
     )
 
@@ -372,13 +350,12 @@ def interpret(
         pointing=sigma_h,
         min_support=t_p,
     )
-    gate = (poses, map.points, even_odds_gate(config.sigma_em, band))
-    a = _select("a", seg_a, fit_a, map.offsets, t_p, gate)
-    b = _select("b", seg_b, fit_b, map.offsets, t_p, gate)
+    a = _select("a", seg_a, fit_a, map.offsets, t_p)
+    b = _select("b", seg_b, fit_b, map.offsets, t_p)
     notes = [_snap_note(s) for s in (a, b) if s.fit.snap is not None]
     notes += [
         f"segment {s.name}: EM {'converged' if s.fit.converged else 'stopped'} after "
-        f"{s.fit.iterations} iterations, {s.on_line} of {s.fit.candidates.size} "
+        f"{s.fit.iterations} iterations, {s.fit.num_inliers} of {s.fit.candidates.size} "
         f"candidates on the line, {s.rows.shape[0]} from {s.poses.size} poses with >= {t_p} "
         f"(log-likelihood {s.fit.log_likelihood:.1f})"
         for s in (a, b)
