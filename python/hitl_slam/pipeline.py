@@ -278,7 +278,7 @@ def apply_correction(
     t0 = time.perf_counter()
     current = np.ascontiguousarray(poses, dtype=np.float64)
     h = interpret(map, current, drawn, config)
-    # Where the error goes: the odometry's information, widened where its scans contradict it.
+    # Where the error goes: the odometry, re-measured where its scans contradict it (§I.5).
     map = checked_map(map, config)
     t1 = time.perf_counter()
     if h.mode is Mode.COLOCATION and config.colocation_guard > 0:

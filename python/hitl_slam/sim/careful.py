@@ -132,8 +132,8 @@ class CarefulPerson(SimulatedHuman):
 
     def _segment(self, poses: FloatArray, visit: Visit, *, whole: bool) -> list[list[float]] | None:
         pts = self._points(poses, visit)
-        fit = fit_points(pts)
         if whole:
+            fit = fit_points(pts)
             direction = np.array([-fit.normal[1], fit.normal[0]])
             centre = np.asarray(fit.centre)
             lo, hi = np.quantile((pts - centre) @ direction, (0.02, 0.98))
