@@ -73,33 +73,6 @@ def test_the_careful_person_draws_true_statements_in_both_directions() -> None:
     assert directions == {True, False}
 
 
-def test_the_careful_person_draws_no_smear_and_nothing_false_on_the_truth() -> None:
-    """On a generated world the truth is exact, so nothing is false on it; on poses that smear a
-    pass (turned while it went by) the person does not draw along that pass; pairs that look
-    wrong on the true poses are never offered (a real log's pseudo ground truth has them)."""
-    base = parallel_corridors(5, heading_jump_deg=0.0)
-    person = CarefulPerson(base, 1)
-    assert person.false_on_truth == frozenset()
-    scenario = damaged(base, jump(base.truth, np.random.default_rng(5)), 6)
-    person = CarefulPerson(scenario, 1)
-    poses = scenario.map.poses.copy()
-    issue = person.inconsistencies(poses)[0]
-    assert person._segment(poses, issue.a, whole=False) is not None
-    # Smear pass a: turn its poses by a growing angle about the first one.
-    visit = issue.a
-    k = np.arange(visit.first, visit.last + 1)
-    turn = np.linspace(0.0, math.radians(6.0), k.size)
-    c, s_ = np.cos(turn), np.sin(turn)
-    d = poses[k, :2] - poses[visit.first, :2]
-    poses[k, 0] = poses[visit.first, 0] + c * d[:, 0] - s_ * d[:, 1]
-    poses[k, 1] = poses[visit.first, 1] + s_ * d[:, 0] + c * d[:, 1]
-    poses[k, 2] += turn
-    assert person._segment(poses, visit, whole=False) is None
-    # A pair declared false on the truth is not offered, though it looks wrong.
-    person.false_on_truth = frozenset({issue.key})
-    assert issue.key not in {i.key for i in person.inconsistencies(scenario.map.poses)}
-
-
 @needs_logs
 def test_a_run_records_every_drawing_and_the_report_shows_the_targets() -> None:
     run = evaluate_run("Orebro", "jump", 0.05, seed=1, max_corrections=6)

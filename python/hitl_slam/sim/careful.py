@@ -8,10 +8,7 @@ meant), this person is harder on the interpreter: every endpoint is off by Gauss
 ``endpoint_noise`` (5 or 15 cm) whatever the gap to the next copy, every segment is drawn in a
 random direction, the drawing's accuracy is the default ``sigma_h``, and where both passes saw the
 same stretch of a wall (the same two ends) they say so with a colocation instead of a collinear
-pair. They draw only copies that look like walls on the map shown (not smears: see
-``_SMEAR_RMS_M``), and only statements that hold on the true poses (a real log's corrected poses
-are a pseudo ground truth in which some pairs of passes of one wall already differ by more than
-a person would let pass: see ``CarefulPerson.false_on_truth``).
+pair.
 """
 
 from __future__ import annotations
@@ -37,28 +34,6 @@ person draws a longer stretch of the wall or none."""
 _SAME_ENDS_M = 0.3
 """Two passes saw the same stretch of a wall when both ends of what each saw (the 2nd and 98th
 percentiles along the true wall) agree to this [m]: a person sees the same corners in both."""
-
-_SMEAR_RMS_M = 0.05
-"""A copy is a wall a person can draw along only where its points lie on one line: within this
-rms [m] of their best line on the map shown, along the stretch drawn. Every labelled pass lies
-within 2 cm of its line on the true poses of all nine maps; where odometry noise turned a pass
-while it went by (a robot turning on the spot in Freiburg 079: 0.35 m rms), the copy is a smear
-there, and a careful person draws the copies that look like walls."""
-
-
-def _smeared(points: FloatArray, ends: FloatArray) -> bool:
-    """Whether the pass's ``points`` along the stretch between ``ends`` lie further than
-    :data:`_SMEAR_RMS_M` (rms) from their own best line; a stretch with under 10 points is
-    judged by all of them."""
-    d = ends[1] - ends[0]
-    length = float(np.hypot(*d))
-    t = (points - ends[0]) @ (d / length)
-    near = points[(t >= 0.0) & (t <= length)]
-    if near.shape[0] < 10:
-        near = points
-    fit = fit_points(near)
-    off_line = (near - np.asarray(fit.centre)) @ fit.normal
-    return float(np.sqrt(np.mean(off_line**2))) > _SMEAR_RMS_M
 
 
 class CarefulPerson(SimulatedHuman):
@@ -88,15 +63,6 @@ class CarefulPerson(SimulatedHuman):
         )
         self.colocations = colocations
         self._true_extent: dict[Visit, tuple[float, float]] = {}
-        # Pairs that look wrong on the true poses themselves: "same wall", "parallel" or
-        # "perpendicular" is not true of them in the frame the map is scored in (a real log's
-        # corrected poses are a pseudo ground truth, off by up to a degree or a few cm between
-        # passes), so a careful person who only says true things never draws them.
-        self.false_on_truth = frozenset(i.key for i in super().inconsistencies(scenario.truth))
-
-    def inconsistencies(self, poses: FloatArray) -> list[Inconsistency]:
-        """What looks wrong on ``poses`` and is true to say (see :attr:`false_on_truth`)."""
-        return [i for i in super().inconsistencies(poses) if i.key not in self.false_on_truth]
 
     def _extent(self, visit: Visit) -> tuple[float, float]:
         """Where ``visit``'s points lie along its true wall [m from the wall's first end]."""
@@ -131,8 +97,8 @@ class CarefulPerson(SimulatedHuman):
         return DrawnCorrection.make(segments[0], segments[1], mode)
 
     def _segment(self, poses: FloatArray, visit: Visit, *, whole: bool) -> list[list[float]] | None:
-        pts = self._points(poses, visit)
         if whole:
+            pts = self._points(poses, visit)
             fit = fit_points(pts)
             direction = np.array([-fit.normal[1], fit.normal[0]])
             centre = np.asarray(fit.centre)
@@ -147,8 +113,6 @@ class CarefulPerson(SimulatedHuman):
             ends = np.asarray(drawn[0], dtype=np.float64)
         if float(np.hypot(*(ends[1] - ends[0]))) < max(0.3, _MIN_STROKE * self.endpoint_noise):
             return None
-        if _smeared(pts, ends):
-            return None  # a smear there, not a wall
         ends = ends + self.rng.normal(0.0, self.endpoint_noise, (2, 2))
         if self.rng.random() < 0.5:
             ends = ends[::-1]
