@@ -53,13 +53,18 @@ def to_world(
     return out
 
 
+def wrap(angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Angles [rad] wrapped to [-pi, pi)."""
+    return np.mod(angles + np.pi, 2 * np.pi) - np.pi
+
+
 def chain_steps(poses: NDArray[np.float64]) -> NDArray[np.float64]:
     """``(N - 1, 3)`` steps ``x_k^-1 x_(k+1)`` between consecutive poses ``(N, 3)``, heading
     wrapped to [-pi, pi)."""
     a, b = poses[:-1], poses[1:]
     c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
     dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-    dth = np.mod(b[:, 2] - a[:, 2] + np.pi, 2 * np.pi) - np.pi
+    dth = wrap(b[:, 2] - a[:, 2])
     return np.stack([c * dx + s * dy, -s * dx + c * dy, dth], axis=1)
 
 

@@ -22,7 +22,7 @@ from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected
-from hitl_slam.map import Map, chain_steps, compose, motion_model_information, to_world
+from hitl_slam.map import Map, chain_steps, compose, motion_model_information, to_world, wrap
 from hitl_slam.solve import robust_pairs
 
 __all__ = [
@@ -77,7 +77,7 @@ def chain_variances(map: Map, poses: FloatArray | None = None) -> tuple[FloatArr
         if poses is not None:
             shown = chain_steps(np.asarray(poses, dtype=np.float64))[k, 2]
             measured = np.where(forward, 1.0, -1.0)[chain] * map.measurements[chain, 2]
-            cov[k, 2, 2] += (np.remainder(shown - measured + np.pi, 2 * np.pi) - np.pi) ** 2
+            cov[k, 2, 2] += wrap(shown - measured) ** 2
     rot = np.ascontiguousarray(cov[:, 2, 2])
     trans = np.ascontiguousarray(0.5 * (cov[:, 0, 0] + cov[:, 1, 1]))
     return rot, trans
