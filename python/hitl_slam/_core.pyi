@@ -248,10 +248,6 @@ class EmFit:
     def snap(self) -> Snap | None: ...
     @property
     def num_inliers(self) -> int: ...
-    @property
-    def held(self) -> bool:
-        """Whether the line was held at the snapped one: EM left it by more than the direction
-        search's resolution, or lost every point."""
 
 def em_fit(
     world_points: NDArray[np.float64],

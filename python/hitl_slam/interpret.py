@@ -144,15 +144,10 @@ def _snap_note(sel: _Selection) -> str:
         if not math.isfinite(snap.runner_up)
         else f"score {snap.score:.2f} against {snap.runner_up:.2f} for the next line"
     )
-    held = (
-        "; EM kept to that line (left free, it turned onto another line or lost it)"
-        if sel.fit.held
-        else ""
-    )
     return (
         f"segment {sel.name}: the nearest dense line has {snap.support} points; the drawing was "
         f"moved {snap.moved[0]:.2f} m and {snap.moved[1]:.2f} m onto it and turned "
-        f"{math.degrees(snap.turn):.1f} deg ({clear}){held}"
+        f"{math.degrees(snap.turn):.1f} deg ({clear})"
     )
 
 

@@ -119,9 +119,6 @@ pub struct EmFit {
     /// The line the drawn segment was snapped to before EM (`em_fit_scans` with a search), and
     /// EM ran from there; `None` when EM started at the drawn line.
     pub snap: Option<Snap>,
-    /// Whether the line was held at the snapped one ([`em_fit_within`]): EM left it by more
-    /// than the search's resolution, or lost every point.
-    pub held: bool,
 }
 
 /// The model's constants, precomputed once per run.
@@ -272,10 +269,6 @@ fn finish_line(
     }
 }
 
-/// The smallest turn EM may make from a snapped line (radians): however fine the search, EM
-/// may settle the line on its points by a degree.
-pub const MIN_SNAPPED_TURN: f64 = 0.0175;
-
 /// EM for one drawn segment over `points` (world frame, the array `grid` was built on).
 pub fn em_fit(
     points: Points<'_>,
@@ -283,34 +276,7 @@ pub fn em_fit(
     seg: &Segment,
     params: &EmParams,
 ) -> Result<EmFit> {
-    em_fit_within(points, grid, seg, params, None)
-}
-
-/// [`em_fit`] that must end within `max_turn` (radians) of the segment's line: EM runs free
-/// first; if its line turned farther, or lost every point, the line is held where it started
-/// ([`held_line`], [`EmFit::held`]).
-///
-/// Used after snapping, where the direction search has already ranked every line near the
-/// drawing: a free EM can slide from the line the search chose onto a denser line crossing the
-/// band (another pass of the same wall turned by the damage, or a door frame beside a short
-/// stretch of wall), which on Freiburg 079 made a collinear correction turn the map by 27
-/// degrees; or wander off between two lines and end with no point on either, which refused a
-/// drawing made along a line of 1,500 observations.
-pub fn em_fit_within(
-    points: Points<'_>,
-    grid: &GridIndex,
-    seg: &Segment,
-    params: &EmParams,
-    max_turn: Option<f64>,
-) -> Result<EmFit> {
     params.validate()?;
-    if let Some(t) = max_turn {
-        if !(t.is_finite() && t >= 0.0) {
-            return Err(HitlError::Input(format!(
-                "EM's largest turn must be a finite angle >= 0, got {t}"
-            )));
-        }
-    }
     let frame = SegmentFrame::new(seg)?;
     let mut candidates = Vec::new();
     grid.query_frame(points, &frame, params.band, &mut candidates);
@@ -323,72 +289,6 @@ pub fn em_fit_within(
                 .ok_or_else(|| HitlError::Input("the grid was built on other points".into()))
         })
         .collect::<Result<_>>()?;
-    let free = run_em(&local, &frame, params);
-    let fit = match max_turn {
-        Some(t) if free.num_inliers == 0 || turn_between(free.line.normal, frame.n) > t => {
-            held_line(&local, &frame, params)
-        }
-        _ => free,
-    };
-    Ok(EmFit { candidates, ..fit })
-}
-
-/// The snapped line kept as it is: its observations are the candidates within
-/// `HELD_BAND` sigma of it (weight 1, the others 0). Where EM would not keep to the line, the
-/// band is crowded with other lines (passes that disagree, clutter), whose points make the
-/// uniform clutter model of EM a poor one; the search already judged this line the drawn one.
-fn held_line(local: &[Point], frame: &SegmentFrame, params: &EmParams) -> EmFit {
-    let dens = Densities::new(params.sigma, params.band);
-    let limit = HELD_BAND * params.sigma;
-    let w: Vec<f64> = local
-        .iter()
-        .map(|&q| {
-            if dot(frame.n, q).abs() <= limit {
-                1.0
-            } else {
-                0.0
-            }
-        })
-        .collect();
-    let num_inliers = w.iter().filter(|&&wk| wk > 0.5).count();
-    let mixing = if local.is_empty() {
-        MIN_MIXING
-    } else {
-        (num_inliers as f64 / local.len() as f64).clamp(MIN_MIXING, MAX_MIXING)
-    };
-    let model = Model {
-        n: frame.n,
-        r: 0.0,
-        mixing,
-    };
-    let mut scratch = Vec::with_capacity(local.len());
-    let log_likelihood = e_step(local, &model, &dens, &mut scratch);
-    let line = finish_line(local, &w, frame.n, 0.0, frame, params.band);
-    EmFit {
-        candidates: Vec::new(),
-        weights: w,
-        line,
-        iterations: 0,
-        log_likelihood,
-        converged: true,
-        mixing,
-        num_inliers,
-        snap: None,
-        held: true,
-    }
-}
-
-/// Half-width of a held line's observations [sigma_em].
-const HELD_BAND: f64 = 2.0;
-
-/// The angle between two lines given by their normals (radians, in [0, pi/2]).
-fn turn_between(n: Point, m: Point) -> f64 {
-    (n[0] * m[1] - n[1] * m[0]).abs().atan2(dot(n, m).abs())
-}
-
-/// EM over the candidates `local` (relative to the frame's midpoint), from the frame's line.
-/// `candidates` is left empty for the caller.
-fn run_em(local: &[Point], frame: &SegmentFrame, params: &EmParams) -> EmFit {
     let dens = Densities::new(params.sigma, params.band);
     // The drawn line passes through the midpoint, so r = 0 locally.
     let mut model = Model {
@@ -399,14 +299,16 @@ fn run_em(local: &[Point], frame: &SegmentFrame, params: &EmParams) -> EmFit {
     let mut w = Vec::with_capacity(local.len());
     let (mut iterations, mut converged) = (0, false);
     while iterations < params.max_iterations {
-        e_step(local, &model, &dens, &mut w);
-        let Some((n, r)) = weighted_fit(local, &w, model.n) else {
+        e_step(&local, &model, &dens, &mut w);
+        let Some((n, r)) = weighted_fit(&local, &w, model.n) else {
             break;
         };
         let mixing = (w.iter().sum::<f64>() / w.len() as f64).clamp(MIN_MIXING, MAX_MIXING);
         iterations += 1;
         // n is oriented like model.n, so the turn is the angle between them, modulo pi.
-        let turn = turn_between(n, model.n);
+        let turn = (n[0] * model.n[1] - n[1] * model.n[0])
+            .abs()
+            .atan2(dot(n, model.n).abs());
         let shift = (r - model.r).abs();
         let dpi = (mixing - model.mixing).abs();
         model = Model { n, r, mixing };
@@ -416,11 +318,11 @@ fn run_em(local: &[Point], frame: &SegmentFrame, params: &EmParams) -> EmFit {
         }
     }
     // Final E-step: the weights (and so the observation set) belong to the final line.
-    let log_likelihood = e_step(local, &model, &dens, &mut w);
-    let line = finish_line(local, &w, model.n, model.r, frame, params.band);
+    let log_likelihood = e_step(&local, &model, &dens, &mut w);
+    let line = finish_line(&local, &w, model.n, model.r, &frame, params.band);
     let num_inliers = w.iter().filter(|&&wk| wk > 0.5).count();
-    EmFit {
-        candidates: Vec::new(),
+    Ok(EmFit {
+        candidates,
         weights: w,
         line,
         iterations,
@@ -429,8 +331,7 @@ fn run_em(local: &[Point], frame: &SegmentFrame, params: &EmParams) -> EmFit {
         mixing: model.mixing,
         num_inliers,
         snap: None,
-        held: false,
-    }
+    })
 }
 
 /// Fails, before any work, on unusable parameters or a degenerate segment.
@@ -491,8 +392,7 @@ pub fn em_fit_scans(
                 None => None,
             };
             let start = snapped.map_or(*seg, |s| s.segment);
-            let max_turn = snapped.map(|s| s.resolution.max(MIN_SNAPPED_TURN));
-            let mut fit = em_fit_within(world_pts, &grid, &start, params, max_turn)?;
+            let mut fit = em_fit(world_pts, &grid, &start, params)?;
             fit.snap = snapped;
             // Kept rows ascend, so the candidates stay in ascending order.
             for c in &mut fit.candidates {
@@ -753,72 +653,6 @@ mod tests {
         assert!(line_fit(one, &[1.0, 1.0], &seg, 0.3).is_err());
         assert!(line_fit(one, &[f64::NAN], &seg, 0.3).is_err());
         assert!(em_fit_segments(pts, &[Segment::new([0.0, 0.0], [0.0, 0.0])], &params()).is_err());
-    }
-
-    #[test]
-    fn a_snapped_short_stroke_keeps_to_its_wall_beside_a_crossing_structure() {
-        // Freiburg 079's failure: a 0.3 m stroke along a 0.4 m stretch of wall (y = 0) whose
-        // band also holds a denser 0.7 m structure crossing it at 27 degrees (a door frame).
-        // Where the direction search puts the stroke on the wall, EM free to turn slid onto the
-        // structure (27 degrees off; a collinear correction then turned the map by as much).
-        // Bounded, EM stays within the search's resolution of the snapped line.
-        let (mut on_wall, mut slid) = (0, 0);
-        for seed in 0..40u64 {
-            let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-            let mut flat = Vec::new();
-            for _ in 0..80 {
-                flat.push(rng.random_range(-0.2..0.2));
-                flat.push(0.01 * normal(&mut rng));
-            }
-            let (s, c) = 27f64.to_radians().sin_cos();
-            let start = [-0.3 + 0.005 * seed as f64, -0.15];
-            for _ in 0..200 {
-                let t = rng.random_range(0.0..0.7);
-                let e = 0.01 * normal(&mut rng);
-                flat.push(start[0] + t * c - e * s);
-                flat.push(start[1] + t * s + e * c);
-            }
-            for _ in 0..60 {
-                flat.push(rng.random_range(-0.8..0.8));
-                flat.push(rng.random_range(-0.6..0.6));
-            }
-            let (poses, offsets) = ([0.0, 0.0, 0.0], [0i64, (flat.len() / 2) as i64]);
-            let pts = Points::new(&flat).unwrap();
-            let y = 0.05 * normal(&mut rng);
-            let seg = Segment::new([-0.15, y], [0.16, y + 0.05 * normal(&mut rng)]);
-            let search = SnapParams {
-                search_band: 0.5,
-                sigma: 0.03,
-                closeness: 0.2,
-                pointing: 0.1,
-                min_support: 8,
-            };
-            let fits = em_fit_scans(&poses, pts, &offsets, &[seg], &params(), Some(&search));
-            let fit = &fits.unwrap()[0];
-            let snap = fit.snap.expect("a line near the stroke");
-            // The snapped segment's normal against EM's: within the bound.
-            let frame = SegmentFrame::new(&snap.segment).unwrap();
-            let turn = angle_mod_pi(fit.line.phi - frame.n[1].atan2(frame.n[0]));
-            assert!(
-                turn <= snap.resolution.max(MIN_SNAPPED_TURN) + 1e-9,
-                "seed {seed}"
-            );
-            let off_wall = |phi: f64| angle_mod_pi(phi - std::f64::consts::FRAC_PI_2);
-            if off_wall(fit.line.phi) < 5f64.to_radians() {
-                on_wall += 1;
-                let grid = GridIndex::build(pts, 0.3).unwrap();
-                let free = em_fit(pts, &grid, &snap.segment, &params()).unwrap();
-                if off_wall(free.line.phi) > 20f64.to_radians() {
-                    slid += 1;
-                }
-            }
-        }
-        // The fixture does hold the failure: on the wall with the bound, on the structure
-        // without it.
-        assert!(
-            on_wall >= 3 && slid == on_wall,
-            "{on_wall} on the wall, {slid} slid when free"
-        );
     }
 
     #[test]

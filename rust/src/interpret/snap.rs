@@ -79,10 +79,6 @@ pub struct Snap {
     /// The best score among lines at least `3 sigma` away from the chosen one (at the drawn
     /// midpoint), `-inf` when there is none: how clear the choice was.
     pub runner_up: f64,
-    /// The angle between neighbouring directions of the search (radians): the line found is
-    /// the best of its direction to about this much. EM refines the snapped line within it
-    /// ([`super::em::em_fit_scans`]); a line farther turned was searched and ranked lower.
-    pub resolution: f64,
 }
 
 /// Largest turn searched, whatever the segment's length (radians).
@@ -212,7 +208,6 @@ pub fn snap(
         support,
         score,
         runner_up,
-        resolution: step,
     }))
 }
 

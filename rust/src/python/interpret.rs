@@ -65,8 +65,6 @@ pub struct PyEmFit {
     num_inliers: usize,
     /// The line the drawn segment was snapped to before EM, or None (EM from the drawn line).
     snap: Option<Py<PySnap>>,
-    /// Whether the line was held at the snapped one (EM left it, or lost every point).
-    held: bool,
 }
 
 /// Where a drawn segment was snapped before EM (`em_fit_scans` with `search_band`).
@@ -139,7 +137,6 @@ impl PyEmFit {
             mixing: fit.mixing,
             num_inliers: fit.num_inliers,
             snap,
-            held: fit.held,
         })
     }
 }
