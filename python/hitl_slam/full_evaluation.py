@@ -20,12 +20,17 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import CorrectionRejected, InputError
 from hitl_slam.evaluation import LASER, _nanmean
+
+if TYPE_CHECKING:
+    from hitl_slam.corrections import Interpretation
+    from hitl_slam.sim.human import Inconsistency, Visit
 
 __all__ = [
     "FULL_MAPS",
@@ -158,17 +163,16 @@ def _describe(faults: Sequence[object]) -> str:
     return "; ".join(parts)
 
 
-def _selected_meant(h: object, issue: object) -> bool | None:
+def _selected_meant(h: Interpretation, issue: Inconsistency | None) -> bool | None:
     """Whether interpretation ``h`` kept, for each segment, poses of the pass the person drew
-    it on (``issue``: :class:`~hitl_slam.sim.human.Inconsistency`, either order); None when
-    the person's intent is unknown."""
+    it on (either order); None when the person's intent is unknown."""
     if issue is None:
         return None
-    a, b = issue.a, issue.b  # type: ignore[attr-defined]
-    xa, xb = h.x_a, h.x_b  # type: ignore[attr-defined]
+    a, b = issue.a, issue.b
+    xa, xb = h.x_a, h.x_b
 
-    def on(x: np.ndarray, v: object) -> bool:
-        return bool(np.any((x >= v.first) & (x <= v.last)))  # type: ignore[attr-defined]
+    def on(x: np.ndarray, v: Visit) -> bool:
+        return bool(np.any((x >= v.first) & (x <= v.last)))
 
     return (on(xa, a) and on(xb, b)) or (on(xa, b) and on(xb, a))
 
