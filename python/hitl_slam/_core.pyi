@@ -6,6 +6,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = [
+    "CorrectionEngine",
     "EmFit",
     "Graph",
     "IterationRecord",
@@ -115,6 +116,46 @@ class SolveReport:
     def nnz_factor(self) -> int: ...
     @property
     def history(self) -> list[IterationRecord]: ...
+
+_Correction = tuple[
+    str, NDArray[np.int64], NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]
+]
+
+@final
+class CorrectionEngine:
+    """The map's relative-pose factors, held once, and joint solves with human corrections."""
+
+    def __new__(
+        cls,
+        num_poses: int,
+        edges: NDArray[np.int64],
+        measurements: NDArray[np.float64],
+        information: NDArray[np.float64],
+        anchor: int = 0,
+    ) -> CorrectionEngine: ...
+    @property
+    def num_poses(self) -> int: ...
+    @property
+    def analyses(self) -> int: ...
+    def clear_cache(self) -> None: ...
+    def base_chi2(self, poses: NDArray[np.float64]) -> float: ...
+    def solve(
+        self,
+        poses: NDArray[np.float64],
+        corrections: list[_Correction],
+        *,
+        sigma_f: float,
+        k1: float,
+        k2: float,
+        average_points: bool = False,
+        method: str = "lm",
+        max_iterations: int = 100,
+        relative_tolerance: float = 1e-6,
+        absolute_tolerance: float = 1e-6,
+        lambda_initial: float = 1e-5,
+        robust: list[tuple[str, str]] | None = None,
+        watchdog_steps: int = 3,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], SolveReport]: ...
 
 @final
 class Graph:

@@ -11,9 +11,12 @@ import dataclasses
 import logging
 import math
 import time
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 from statistics import NormalDist
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,19 +25,21 @@ from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected
-from hitl_slam.map import Map, chain_steps, compose, motion_model_information, to_world, wrap
+from hitl_slam.map import Map, chain_steps, compose, motion_model_information, wrap
 from hitl_slam.solve import robust_pairs
 
 __all__ = [
     "CorrectionResult",
     "apply_correction",
     "chain_variances",
+    "correction_engine",
     "explicit_and_backpropagate",
     "fit_line",
     "solve_all",
 ]
 
 FloatArray = NDArray[np.float64]
+_T = TypeVar("_T")
 
 logger = logging.getLogger(__name__)
 
@@ -65,22 +70,54 @@ def chain_variances(map: Map, poses: FloatArray | None = None) -> tuple[FloatArr
     correction already bent) has its rotational variance widened by the squared difference:
     how far the displayed step may be from the truth, which is what back-propagation shares
     the error by."""
+    chain = _chain_of(map)
+    rot = chain.rot.copy()
+    if poses is not None and chain.steps.size:
+        shown = chain_steps(np.asarray(poses, dtype=np.float64))[chain.steps, 2]
+        rot[chain.steps] += wrap(shown - chain.turns) ** 2
+    return rot, chain.trans.copy()
+
+
+@dataclass(frozen=True)
+class _Chain:
+    """What back-propagation needs of a map's chain, computed once per map object."""
+
+    rot: FloatArray  # (N-1,) rotational variance of each step k -> k+1
+    trans: FloatArray  # (N-1,) isotropic translational variance
+    steps: NDArray[np.int64]  # the steps that have a chain edge
+    turns: FloatArray  # their edges' measured turns, in the k -> k+1 direction
+
+
+_CHAINS: dict[int, tuple[weakref.ref[Map], _Chain]] = {}
+
+
+def _chain_of(map: Map) -> _Chain:
+    key = id(map)
+    hit = _CHAINS.get(key)
+    if hit is not None and hit[0]() is map:
+        return hit[1]
     z = chain_steps(map.poses)
     cov = np.linalg.inv(motion_model_information(z, DEFAULT))
     e = map.edges
     forward = e[:, 1] == e[:, 0] + 1
     backward = e[:, 0] == e[:, 1] + 1
-    chain = forward | backward
-    if np.any(chain):
-        k = np.where(forward, e[:, 0], e[:, 1])[chain]
-        cov[k] = np.linalg.inv(map.information[chain])
-        if poses is not None:
-            shown = chain_steps(np.asarray(poses, dtype=np.float64))[k, 2]
-            measured = np.where(forward, 1.0, -1.0)[chain] * map.measurements[chain, 2]
-            cov[k, 2, 2] += wrap(shown - measured) ** 2
-    rot = np.ascontiguousarray(cov[:, 2, 2])
-    trans = np.ascontiguousarray(0.5 * (cov[:, 0, 0] + cov[:, 1, 1]))
-    return rot, trans
+    on_chain = forward | backward
+    steps = np.where(forward, e[:, 0], e[:, 1])[on_chain].astype(np.int64)
+    turns = np.where(forward, 1.0, -1.0)[on_chain] * map.measurements[on_chain, 2]
+    if steps.size:
+        cov[steps] = np.linalg.inv(map.information[on_chain])
+    chain = _Chain(
+        rot=np.ascontiguousarray(cov[:, 2, 2]),
+        trans=np.ascontiguousarray(0.5 * (cov[:, 0, 0] + cov[:, 1, 1])),
+        steps=steps,
+        turns=np.ascontiguousarray(turns),
+    )
+    _CHAINS[key] = (weakref.ref(map, partial(_forget, _CHAINS, key)), chain)
+    return chain
+
+
+def _forget(cache: dict[int, _T], key: int, _ref: object) -> None:
+    cache.pop(key, None)
 
 
 def fit_line(points: FloatArray) -> tuple[float, float]:
@@ -98,37 +135,44 @@ def _observations(map: Map, rows: NDArray[np.int64]) -> tuple[NDArray[np.int64],
     return poses, np.ascontiguousarray(map.points[map.point_rows(rows)])
 
 
+def correction_engine(map: Map) -> _core.CorrectionEngine:
+    """The correction engine of ``map``: its relative-pose factors, held once per map object,
+    with the symbolic analyses of the structures it solved recently (undo, redo and the guards'
+    second solve of one drawing return to structures seen a moment ago)."""
+    key = id(map)
+    hit = _ENGINES.get(key)
+    if hit is not None and hit[0]() is map:
+        return hit[1]
+    engine = _core.CorrectionEngine(
+        map.num_poses, map.edges, map.measurements, map.information, map.anchor
+    )
+    _ENGINES[key] = (weakref.ref(map, partial(_forget, _ENGINES, key)), engine)
+    return engine
+
+
+_ENGINES: dict[int, tuple[weakref.ref[Map], _core.CorrectionEngine]] = {}
+
+
 def solve_all(
     map: Map,
     active: Sequence[Interpretation],
     config: Config = DEFAULT,
     start: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray, _core.SolveReport]:
-    """Joint optimization (§4.3) of poses and the lines of every correction in ``active``,
-    from ``start`` (default: the map's poses), over the map's ORIGINAL relative-pose factors."""
+    """Joint optimization (docs/ALGORITHM.md §4.3) of poses and the lines of every correction in
+    ``active``, from ``start`` (default: the map's poses), over the map's ORIGINAL relative-pose
+    factors. Each line starts at the total-least-squares fit of its observations at ``start``."""
     x0 = np.ascontiguousarray(map.poses if start is None else start, dtype=np.float64)
-    engine = _core.Graph(x0.shape[0], map.edges, map.measurements, map.information, map.anchor)
-    lines = []
-    for h in active:
-        a_poses, a_points = _observations(map, h.s_a)
-        b_poses, b_points = _observations(map, h.s_b)
-        engine.add_correction(
-            h.mode.value,
-            a_poses,
-            a_points,
-            b_poses,
-            b_points,
-            sigma_f=config.sigma_f,
-            k1=config.k1,
-            k2=config.k2,
-            average_points=config.average_points,
-        )
-        lines.append(fit_line(to_world(x0, a_poses, a_points)))
-        lines.append(fit_line(to_world(x0, b_poses, b_points)))
-    line_values = np.array(lines, dtype=np.float64).reshape(-1, 2)
-    poses, solved_lines, report = engine.optimize_with_lines(
+    corrections = [
+        (h.mode.value, *_observations(map, h.s_a), *_observations(map, h.s_b)) for h in active
+    ]
+    return correction_engine(map).solve(
         x0,
-        line_values,
+        corrections,
+        sigma_f=config.sigma_f,
+        k1=config.k1,
+        k2=config.k2,
+        average_points=config.average_points,
         max_iterations=config.max_iterations,
         relative_tolerance=config.relative_tolerance,
         absolute_tolerance=config.absolute_tolerance,
@@ -139,7 +183,6 @@ def solve_all(
         # mean angle error 1.75 -> 2.75 deg with it).
         watchdog_steps=0,
     )
-    return poses, solved_lines, report
 
 
 def explicit_and_backpropagate(
@@ -163,8 +206,8 @@ def explicit_and_backpropagate(
 def _graph_chi2(map: Map, *poses: FloatArray) -> list[float]:
     """chi2 of the map's relative-pose factors alone (the robot's measurements) at each of
     ``poses`` (one graph built for all)."""
-    engine = _core.Graph(map.num_poses, map.edges, map.measurements, map.information, map.anchor)
-    return [float(engine.chi2(np.ascontiguousarray(p, dtype=np.float64))) for p in poses]
+    engine = correction_engine(map)
+    return [float(engine.base_chi2(np.ascontiguousarray(p, dtype=np.float64))) for p in poses]
 
 
 def _stretch(map: Map, poses: FloatArray, rows: NDArray[np.int64]) -> float:

@@ -123,6 +123,26 @@ impl FactorGraph {
         Ok(())
     }
 
+    /// Drops every factor after the first `num_factors` and every line variable (the correction
+    /// engine's reset to its base graph); the next solve needs a pattern again.
+    pub(crate) fn truncate(&mut self, num_factors: usize) {
+        self.factors.truncate(num_factors);
+        self.anchors.truncate(num_factors);
+        self.num_lines = 0;
+        self.pattern = None;
+    }
+
+    /// Installs a sparsity pattern computed earlier for exactly this structure (same variables
+    /// and the same factor keys in the same order; the caller keys its cache by them).
+    pub(crate) fn set_pattern(&mut self, pattern: SparsityPattern) {
+        self.pattern = Some(pattern);
+    }
+
+    /// Takes the current sparsity pattern out (for a cache), leaving none.
+    pub(crate) fn take_pattern(&mut self) -> Option<SparsityPattern> {
+        self.pattern.take()
+    }
+
     /// Adds a line variable, returning its index.
     pub fn add_line(&mut self) -> usize {
         self.num_lines += 1;

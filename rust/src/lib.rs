@@ -8,7 +8,7 @@
 //!
 //! `min sum_(i,j) |U_ij Log(z_ij^-1 x_i^-1 x_j)|^2 (+ human correction terms)`, pose `x_0` fixed.
 //!
-//! Module map: [`se2`] (pose math), [`values`] (variables), [`factors`] (residuals),
+//! Module map: [`se2`] (pose math), [`geometry`] (lines: TLS fit, distances), [`values`] (variables), [`factors`] (residuals),
 //! [`graph`] (the factor graph and its gauge), [`init`] (initial guesses: spanning tree,
 //! chordal relaxation), [`solver`] (pattern, LM/GN, marginals),
 //! [`correction`] (explicit correction and back-propagation), [`frontend`] (scan matching),
@@ -36,6 +36,7 @@ pub mod correction;
 pub mod error;
 pub mod factors;
 pub mod frontend;
+pub mod geometry;
 pub mod graph;
 pub mod init;
 pub mod interpret;

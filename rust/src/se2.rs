@@ -104,6 +104,11 @@ impl Pose2 {
     }
 
     #[inline]
+    /// Whether every component is finite.
+    pub fn is_finite(self) -> bool {
+        self.x.is_finite() && self.y.is_finite() && self.theta.is_finite()
+    }
+
     pub fn to_array(self) -> [f64; 3] {
         [self.x, self.y, self.theta]
     }

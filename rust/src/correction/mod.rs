@@ -3,7 +3,9 @@
 //! opens spread over the chain in between (`backprop`, COP-SLAM style).
 
 mod backprop;
+pub mod engine;
 mod explicit;
 
 pub use backprop::backpropagate;
+pub use engine::{CorrectionEngine, CorrectionSpec, HumanWeights, PoseObservations};
 pub use explicit::{explicit_transform, Segment2};

@@ -14,6 +14,7 @@ use rstar::primitives::GeomWithData;
 use rstar::RTree;
 
 use crate::error::{HitlError, Result};
+use crate::geometry::{principal_normal, weighted_scatter};
 use crate::se2::wrap_angle;
 
 /// How scans are matched.
@@ -102,39 +103,23 @@ impl Reference {
         let normals = points
             .iter()
             .map(|p| {
-                let near: Vec<usize> = tree
+                let near: Vec<[f64; 2]> = tree
                     .locate_within_distance(*p, radius * radius)
-                    .map(|e| e.data)
+                    .map(|e| points[e.data])
                     .collect();
                 if near.len() < 3 {
                     return None;
                 }
-                let n = near.len() as f64;
-                let (mut mx, mut my) = (0.0, 0.0);
-                for &q in &near {
-                    let q = points[q];
-                    mx += q[0];
-                    my += q[1];
-                }
-                mx /= n;
-                my /= n;
-                let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
-                for &q in &near {
-                    let q = points[q];
-                    let (dx, dy) = (q[0] - mx, q[1] - my);
-                    sxx += dx * dx;
-                    sxy += dx * dy;
-                    syy += dy * dy;
-                }
-                // Eigen-decomposition of the 2x2 scatter: the normal is the minor axis.
+                let (_, scatter) = weighted_scatter(&near, &vec![1.0; near.len()])?;
+                // Eigenvalues of the 2x2 scatter: a line when the minor one is small.
+                let [sxx, sxy, syy] = scatter;
                 let half_trace = 0.5 * (sxx + syy);
                 let root = (0.25 * (sxx - syy).powi(2) + sxy * sxy).sqrt();
                 let (major, minor) = (half_trace + root, half_trace - root);
                 if major <= 0.0 || minor > 0.05 * major {
                     return None; // a corner or a blob, not a line
                 }
-                let angle = 0.5 * (2.0 * sxy).atan2(sxx - syy) + std::f64::consts::FRAC_PI_2;
-                Some([angle.cos(), angle.sin()])
+                principal_normal(scatter)
             })
             .collect();
         Self {

@@ -20,15 +20,13 @@ use super::{
     canonical_normal, dot, sub, tangent, world_points_near, Point, Points, Segment, SegmentFrame,
 };
 use crate::error::{HitlError, Result};
+pub(super) use crate::geometry::weighted_fit;
 
 /// The mixing weight is kept in `[MIN_MIXING, MAX_MIXING]`: at `pi = 1` the clutter component
 /// has zero weight and every candidate, however far, becomes an inlier for good; at `pi = 0`
 /// the feature can never come back. `1e-3` leaves the M-step's `mean(w)` untouched in practice.
 pub const MIN_MIXING: f64 = 1e-3;
 pub const MAX_MIXING: f64 = 1.0 - 1e-3;
-
-/// Below this relative spread the weighted scatter is isotropic and has no principal direction.
-const ISOTROPIC: f64 = 1e-12;
 
 /// Constants of one EM run.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -184,51 +182,6 @@ fn e_step(local: &[Point], model: &Model, dens: &Densities, w: &mut Vec<f64>) ->
         ll += p.ln();
     }
     ll
-}
-
-/// Weighted total least squares (weighted PCA): the line through the weighted centroid along
-/// the principal axis of the weighted scatter, in closed form for 2x2. The normal is oriented
-/// like `prev`, which is also used when the scatter has no principal direction (one point, or
-/// an isotropic cloud). None when the weights carry no mass.
-pub(super) fn weighted_fit(local: &[Point], w: &[f64], prev: Point) -> Option<(Point, f64)> {
-    // Scaling by the largest weight keeps tiny responsibilities (a drawing far from its wall)
-    // away from subnormal numbers; the fit depends only on relative weights.
-    let w_max = w.iter().copied().fold(0.0_f64, f64::max);
-    if !(w_max > 0.0 && w_max.is_finite()) {
-        return None;
-    }
-    let scale = 1.0 / w_max;
-    let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
-    for (q, &wk) in local.iter().zip(w) {
-        let wk = wk * scale;
-        sw += wk;
-        sx += wk * q[0];
-        sy += wk * q[1];
-    }
-    let c = [sx / sw, sy / sw];
-    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
-    for (q, &wk) in local.iter().zip(w) {
-        let wk = wk * scale;
-        let (dx, dy) = (q[0] - c[0], q[1] - c[1]);
-        sxx += wk * dx * dx;
-        sxy += wk * dx * dy;
-        syy += wk * dy * dy;
-    }
-    let spread = (sxx - syy).hypot(2.0 * sxy);
-    let n = if spread > ISOTROPIC * (sxx + syy) {
-        // Principal axis angle of [[sxx, sxy], [sxy, syy]]; the normal is perpendicular to it.
-        let theta = 0.5 * (2.0 * sxy).atan2(sxx - syy);
-        let (s, co) = theta.sin_cos();
-        let n = [-s, co];
-        if dot(n, prev) < 0.0 {
-            [-n[0], -n[1]]
-        } else {
-            n
-        }
-    } else {
-        prev
-    };
-    Some((n, dot(n, c)))
 }
 
 /// The canonical world line and its extent: the span of the projections of the points with

@@ -22,7 +22,7 @@ pub use snap::{snap, Snap, SnapParams};
 use crate::error::{HitlError, Result};
 
 /// A point of the plane, `[x, y]`, world frame unless said otherwise.
-pub type Point = [f64; 2];
+pub use crate::geometry::Point;
 
 /// Segments shorter than this (metres) have no direction; they are rejected.
 pub const MIN_SEGMENT_LENGTH: f64 = 1e-6;
@@ -300,15 +300,7 @@ fn check_layout(poses: &[f64], points: Points<'_>, offsets: &[i64]) -> Result<()
     Ok(())
 }
 
-#[inline]
-pub(crate) fn dot(a: Point, b: Point) -> f64 {
-    a[0] * b[0] + a[1] * b[1]
-}
-
-#[inline]
-pub(crate) fn sub(a: Point, b: Point) -> Point {
-    [a[0] - b[0], a[1] - b[1]]
-}
+pub(crate) use crate::geometry::{dot, sub};
 
 /// The unit normal of a line, made unique: angle in (-pi/2, pi/2]. `n` and `-n` describe the
 /// same undirected line, and both map to the same canonical vector bit for bit (adding 0.0

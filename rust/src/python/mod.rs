@@ -5,6 +5,7 @@
 //! package's exception classes (defined in `hitl_slam/errors.py`), and a panic is caught here
 //! and reported as an internal error instead of reaching the user as `PanicException`.
 
+mod engine;
 mod frontend;
 mod interpret;
 mod metric;
@@ -20,13 +21,11 @@ use pyo3::prelude::*;
 use pyo3::types::PyType;
 
 use crate::correction::{
-    backpropagate as backpropagate_chain, explicit_transform as explicit_rigid,
+    backpropagate as backpropagate_chain, explicit_transform as explicit_rigid, CorrectionSpec,
+    HumanWeights,
 };
 use crate::error::HitlError;
-use crate::factors::{
-    BetweenFactor, CentroidShare, FactorClass, PointsToLineFactor, PriorFactor, RelationFactor,
-    RelationMode,
-};
+use crate::factors::{BetweenFactor, FactorClass, PriorFactor, RelationMode};
 use crate::graph::FactorGraph;
 use crate::init::InitMethod;
 use crate::se2::Pose2;
@@ -93,7 +92,7 @@ pub(super) fn input_err(msg: impl Into<String>) -> HitlError {
     HitlError::Input(msg.into())
 }
 
-fn read_poses(poses: &PyReadonlyArray2<'_, f64>) -> Result<Vec<Pose2>, HitlError> {
+pub(super) fn read_poses(poses: &PyReadonlyArray2<'_, f64>) -> Result<Vec<Pose2>, HitlError> {
     let a = poses.as_array();
     if a.ncols() != 3 {
         return Err(input_err(format!(
@@ -114,7 +113,7 @@ fn read_poses(poses: &PyReadonlyArray2<'_, f64>) -> Result<Vec<Pose2>, HitlError
     Ok(out)
 }
 
-fn poses_out<'py>(py: Python<'py>, values: &Values) -> Bound<'py, PyArray2<f64>> {
+pub(super) fn poses_out<'py>(py: Python<'py>, values: &Values) -> Bound<'py, PyArray2<f64>> {
     let flat: Vec<f64> = values.poses.iter().flat_map(|p| p.to_array()).collect();
     // Shape (N, 3) always matches the buffer length, so this cannot fail.
     let n = values.poses.len();
@@ -144,24 +143,16 @@ fn read_measurement(
     Ok((Pose2::new(z[0], z[1], z[2]), read_info(info)))
 }
 
-/// A pose graph held by the core, with its cached symbolic analysis.
-#[pyclass(module = "hitl_slam._core", name = "Graph")]
-pub struct PyGraph {
-    inner: FactorGraph,
-}
-
-#[pymethods]
 impl PyGraph {
-    #[new]
-    #[pyo3(signature = (num_poses, edges, measurements, information, anchor = 0))]
-    fn new(
+    /// The factor graph of `edges` (validated; errors name the edge).
+    pub(super) fn build(
         py: Python<'_>,
         num_poses: usize,
         edges: PyReadonlyArray2<'_, i64>,
         measurements: PyReadonlyArray2<'_, f64>,
         information: PyReadonlyArray3<'_, f64>,
         anchor: usize,
-    ) -> PyResult<Self> {
+    ) -> PyResult<FactorGraph> {
         let (e, z, info) = (
             edges.as_array(),
             measurements.as_array(),
@@ -201,9 +192,30 @@ impl PyGraph {
             let infos: Vec<[[f64; 3]; 3]> = info.outer_iter().map(read_info).collect();
             FactorGraph::from_edges(num_poses, &pairs, &zs, &infos, anchor)
         };
-        guarded(build)
+        guarded(build).map_err(|e| to_py(py, e))
+    }
+}
+
+/// A pose graph held by the core, with its cached symbolic analysis.
+#[pyclass(module = "hitl_slam._core", name = "Graph")]
+pub struct PyGraph {
+    inner: FactorGraph,
+}
+
+#[pymethods]
+impl PyGraph {
+    #[new]
+    #[pyo3(signature = (num_poses, edges, measurements, information, anchor = 0))]
+    fn new(
+        py: Python<'_>,
+        num_poses: usize,
+        edges: PyReadonlyArray2<'_, i64>,
+        measurements: PyReadonlyArray2<'_, f64>,
+        information: PyReadonlyArray3<'_, f64>,
+        anchor: usize,
+    ) -> PyResult<Self> {
+        Self::build(py, num_poses, edges, measurements, information, anchor)
             .map(|inner| Self { inner })
-            .map_err(|e| to_py(py, e))
     }
 
     /// Number of poses.
@@ -440,54 +452,25 @@ impl PyGraph {
         );
         let graph = &mut self.inner;
         guarded(|| {
-            let mode = RelationMode::parse(mode)?;
-            if !(sigma_f.is_finite() && sigma_f > 0.0) {
-                return Err(input_err(format!(
-                    "sigma_f must be positive, got {sigma_f}"
-                )));
-            }
             let n = graph.num_poses();
-            let ga = group_by_pose(ap, aq, n, "a")?;
-            let gb = group_by_pose(bp, bq, n, "b")?;
-            if ga.iter().any(|(i, _)| gb.iter().any(|(j, _)| i == j)) {
-                return Err(input_err(
-                    "a pose observes both features; remove it from one set",
-                ));
-            }
-            let weight = |count: usize| {
-                if average_points {
-                    1.0 / (sigma_f * (count as f64).sqrt())
-                } else {
-                    1.0 / sigma_f
-                }
+            let spec = CorrectionSpec {
+                mode: RelationMode::parse(mode)?,
+                a: group_by_pose(ap, aq, n, "a")?,
+                b: group_by_pose(bp, bq, n, "b")?,
             };
-            let (wa, wb) = (weight(aq.nrows()), weight(bq.nrows()));
+            spec.validate(n)?;
+            let weights = HumanWeights {
+                sigma_f,
+                k1,
+                k2,
+                average_points,
+            };
+            weights.validate()?;
             // Build every factor first so that a bad input adds nothing.
             let la = graph.num_lines();
-            let lb = la + 1;
-            let mut factors: Vec<Box<dyn crate::factors::Factor>> = Vec::new();
-            let mut shares = Vec::new();
-            for (set, w, is_a) in [(&ga, wa, true), (&gb, wb, false)] {
-                for (i, pts) in set.iter() {
-                    let sum = pts
-                        .iter()
-                        .fold([0.0, 0.0], |s, p| [s[0] + p[0], s[1] + p[1]]);
-                    let share = CentroidShare {
-                        count: pts.len() as f64,
-                        sum,
-                    };
-                    shares.push(if is_a {
-                        (*i, share, CentroidShare::default())
-                    } else {
-                        (*i, CentroidShare::default(), share)
-                    });
-                    let line = if is_a { la } else { lb };
-                    factors.push(Box::new(PointsToLineFactor::new(*i, line, pts.clone(), w)?));
-                }
-            }
-            factors.push(Box::new(RelationFactor::new(mode, la, lb, shares, k1, k2)?));
+            let factors = spec.factors(la, &weights)?;
             graph.add_line();
-            graph.add_line();
+            let lb = graph.add_line();
             for f in factors {
                 graph.add_factor(f)?;
             }
@@ -646,7 +629,7 @@ pub struct PySolveReport {
 }
 
 impl PySolveReport {
-    fn new(py: Python<'_>, r: SolveReport) -> Self {
+    pub(super) fn new(py: Python<'_>, r: SolveReport) -> Self {
         Self {
             iterations: r.iterations,
             linear_solves: r.linear_solves,
@@ -680,12 +663,12 @@ impl PySolveReport {
     }
 }
 
-fn parse_method(method: &str) -> Result<Method, HitlError> {
+pub(super) fn parse_method(method: &str) -> Result<Method, HitlError> {
     Method::parse(method)
 }
 
 /// `[(class, kernel)]` pairs such as `("loop", "dcs:1")` into a kernel per factor class.
-fn parse_robust(pairs: &[(String, String)]) -> Result<RobustKernels, HitlError> {
+pub(super) fn parse_robust(pairs: &[(String, String)]) -> Result<RobustKernels, HitlError> {
     let mut kernels = RobustKernels::none();
     for (class, spec) in pairs {
         let class = FactorClass::parse(class)?;
@@ -702,7 +685,7 @@ fn parse_robust(pairs: &[(String, String)]) -> Result<RobustKernels, HitlError> 
 
 /// Groups `(pose, point)` rows by pose (sorted by pose, stable in point order).
 #[allow(clippy::type_complexity)]
-fn group_by_pose(
+pub(super) fn group_by_pose(
     poses: numpy::ndarray::ArrayView1<'_, i64>,
     points: numpy::ndarray::ArrayView2<'_, f64>,
     n: usize,
@@ -802,6 +785,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(wrap_angle, m)?)?;
     m.add_function(wrap_pyfunction!(explicit_transform, m)?)?;
     m.add_function(wrap_pyfunction!(backpropagate, m)?)?;
+    engine::register(m)?;
     interpret::register(m)?;
     metric::register(m)?;
     frontend::register(m)?;

@@ -1,0 +1,397 @@
+//! The correction engine: the map's own relative-pose factors held once, with the human
+//! corrections of a session solved jointly on top of them (ALGORITHM.md §4.3), re-using the
+//! symbolic analysis of every structure it has solved recently.
+//!
+//! A session applies, undoes and redoes corrections; each step solves "the base graph plus the
+//! active corrections". Building a fresh graph per step (as the first pipeline did) redoes the
+//! block adjacency, the ordering and faer's symbolic Cholesky every time, although undo/redo
+//! and the guards' second solve of the same drawing return to structures seen a moment ago. The
+//! engine keeps the base factors, rebuilds only the human part, and keeps the last
+//! [`PATTERN_CACHE`] sparsity patterns keyed by the human part's structure.
+
+use crate::error::{input, HitlError, Result};
+use crate::factors::{CentroidShare, Factor, PointsToLineFactor, RelationFactor, RelationMode};
+use crate::graph::FactorGraph;
+use crate::se2::Pose2;
+use crate::solver::{optimize, SolveReport, SolverParams, SparsityPattern};
+use crate::values::{Key, Line2, Values};
+
+/// How many sparsity patterns (one per structure of the human part) are kept.
+pub const PATTERN_CACHE: usize = 6;
+
+/// One pose's observations of one feature, in the robot frame.
+pub type PoseObservations = (usize, Vec<[f64; 2]>);
+
+/// A human correction as the joint solve needs it: the relation and, per segment, the
+/// observations grouped by observing pose (ascending pose, point order kept).
+#[derive(Clone, Debug)]
+pub struct CorrectionSpec {
+    pub mode: RelationMode,
+    pub a: Vec<PoseObservations>,
+    pub b: Vec<PoseObservations>,
+}
+
+/// The weights of the human factors (`Config.sigma_f`, `k1`, `k2`, `average_points`).
+#[derive(Clone, Copy, Debug)]
+pub struct HumanWeights {
+    pub sigma_f: f64,
+    pub k1: f64,
+    pub k2: f64,
+    pub average_points: bool,
+}
+
+impl HumanWeights {
+    pub fn validate(&self) -> Result<()> {
+        if !(self.sigma_f.is_finite() && self.sigma_f > 0.0) {
+            return input(format!("sigma_f must be positive, got {}", self.sigma_f));
+        }
+        for (name, k) in [("k1", self.k1), ("k2", self.k2)] {
+            if !(k.is_finite() && k >= 0.0) {
+                return input(format!("{name} must be a finite number >= 0, got {k}"));
+            }
+        }
+        Ok(())
+    }
+
+    fn point_weight(&self, count: usize) -> f64 {
+        if self.average_points {
+            1.0 / (self.sigma_f * (count as f64).sqrt())
+        } else {
+            1.0 / self.sigma_f
+        }
+    }
+}
+
+impl CorrectionSpec {
+    /// Checks the observation sets against a graph of `num_poses` poses.
+    pub fn validate(&self, num_poses: usize) -> Result<()> {
+        for (name, set) in [("a", &self.a), ("b", &self.b)] {
+            if set.is_empty() || set.iter().any(|(_, pts)| pts.is_empty()) {
+                return input(format!("segment {name} has no observations"));
+            }
+            if let Some((i, _)) = set.iter().find(|(i, _)| *i >= num_poses) {
+                return input(format!(
+                    "{name}: pose index {i} is out of range (0..{num_poses})"
+                ));
+            }
+            if set.windows(2).any(|w| w[0].0 >= w[1].0) {
+                return input(format!(
+                    "{name}: observations must be grouped by ascending pose"
+                ));
+            }
+            let finite = set
+                .iter()
+                .flat_map(|(_, pts)| pts.iter())
+                .all(|p| p[0].is_finite() && p[1].is_finite());
+            if !finite {
+                return input(format!("{name}: an observation is not finite"));
+            }
+        }
+        if self
+            .a
+            .iter()
+            .any(|(i, _)| self.b.binary_search_by_key(i, |(j, _)| *j).is_ok())
+        {
+            return input("a pose observes both features; remove it from one set");
+        }
+        Ok(())
+    }
+
+    /// The factors of this correction (ALGORITHM.md §4.3) over lines `la` and `la + 1`: one
+    /// point-to-line factor per observing pose and segment, then the relation R_p.
+    pub fn factors(&self, la: usize, w: &HumanWeights) -> Result<Vec<Box<dyn Factor>>> {
+        let lb = la + 1;
+        let count = |set: &[PoseObservations]| set.iter().map(|(_, p)| p.len()).sum::<usize>();
+        let (wa, wb) = (
+            w.point_weight(count(&self.a)),
+            w.point_weight(count(&self.b)),
+        );
+        let mut factors: Vec<Box<dyn Factor>> = Vec::with_capacity(self.a.len() + self.b.len() + 1);
+        let mut shares = Vec::with_capacity(self.a.len() + self.b.len());
+        for (set, weight, is_a) in [(&self.a, wa, true), (&self.b, wb, false)] {
+            for (i, pts) in set {
+                let sum = pts
+                    .iter()
+                    .fold([0.0, 0.0], |s, p| [s[0] + p[0], s[1] + p[1]]);
+                let share = CentroidShare {
+                    count: pts.len() as f64,
+                    sum,
+                };
+                shares.push(if is_a {
+                    (*i, share, CentroidShare::default())
+                } else {
+                    (*i, CentroidShare::default(), share)
+                });
+                let line = if is_a { la } else { lb };
+                factors.push(Box::new(PointsToLineFactor::new(
+                    *i,
+                    line,
+                    pts.clone(),
+                    weight,
+                )?));
+            }
+        }
+        factors.push(Box::new(RelationFactor::new(
+            self.mode, la, lb, shares, w.k1, w.k2,
+        )?));
+        Ok(factors)
+    }
+}
+
+/// The total-least-squares line `(phi, rho)` through the world points of `set` at `poses`
+/// (`n = (cos phi, sin phi)` the normal, `n . p = rho` on the line): the joint solve's start
+/// for a correction's line.
+pub fn fit_line_at(poses: &[Pose2], set: &[PoseObservations]) -> Result<Line2> {
+    let mut world = Vec::new();
+    for (i, pts) in set {
+        let x = poses
+            .get(*i)
+            .ok_or_else(|| HitlError::Input(format!("pose {i} does not exist")))?;
+        world.extend(pts.iter().map(|p| x.transform_point(*p)));
+    }
+    crate::geometry::fit_line(&world)
+        .ok_or_else(|| HitlError::Input("a line needs at least one observation".into()))
+}
+
+/// The map's relative-pose factors, held once, and the joint solve with human corrections.
+#[derive(Debug)]
+pub struct CorrectionEngine {
+    graph: FactorGraph,
+    base_factors: usize,
+    /// Recently used patterns, most recent last, keyed by the human part's structure.
+    patterns: Vec<(Vec<Vec<Key>>, SparsityPattern)>,
+    analyses: usize,
+}
+
+impl CorrectionEngine {
+    /// An engine over `base` (the map's relative-pose factors; it must hold no line variable).
+    pub fn new(base: FactorGraph) -> Result<Self> {
+        if base.num_lines() != 0 {
+            return input("the base graph of a correction engine must have no line variables");
+        }
+        let base_factors = base.num_factors();
+        Ok(Self {
+            graph: base,
+            base_factors,
+            patterns: Vec::new(),
+            analyses: 0,
+        })
+    }
+
+    pub fn num_poses(&self) -> usize {
+        self.graph.num_poses()
+    }
+
+    /// How many symbolic analyses this engine has computed (cache misses).
+    pub fn analyses(&self) -> usize {
+        self.analyses
+    }
+
+    /// Forgets the kept analyses (the next solve of any structure computes its own).
+    pub fn clear_cache(&mut self) {
+        self.patterns.clear();
+    }
+
+    /// chi2 of the map's own relative-pose factors at `poses` (the robot's measurements only).
+    pub fn base_chi2(&self, poses: &[Pose2]) -> Result<f64> {
+        let values = Values::from_poses(poses.to_vec());
+        self.check_poses(&values)?;
+        Ok(self.graph.factors()[..self.base_factors]
+            .iter()
+            .map(|f| f.chi2(&values))
+            .sum())
+    }
+
+    fn check_poses(&self, values: &Values) -> Result<()> {
+        if values.poses.len() != self.graph.num_poses() {
+            return input(format!(
+                "expected {} poses, got {}; pass one (x, y, theta) row per vertex",
+                self.graph.num_poses(),
+                values.poses.len()
+            ));
+        }
+        if let Some(i) = values.poses.iter().position(|p| !p.is_finite()) {
+            return input(format!("pose {i} is not finite; give finite poses"));
+        }
+        Ok(())
+    }
+
+    /// Solves poses and the lines of `corrections` jointly from `poses`, over the base factors
+    /// plus every correction's factors. Each correction's lines start at the TLS fit of its
+    /// observations at `poses`. Returns the values (poses, then two lines per correction, in
+    /// order) and the report. Nothing is kept of the corrections but the structure's analysis.
+    pub fn solve(
+        &mut self,
+        poses: Vec<Pose2>,
+        corrections: &[CorrectionSpec],
+        weights: &HumanWeights,
+        params: &SolverParams,
+    ) -> Result<(Values, SolveReport)> {
+        weights.validate()?;
+        let mut values = Values::from_poses(poses);
+        self.check_poses(&values)?;
+        let n = self.graph.num_poses();
+        // Every factor is built before the graph changes, so a bad correction changes nothing.
+        let mut human: Vec<Box<dyn Factor>> = Vec::new();
+        let mut lines = Vec::with_capacity(2 * corrections.len());
+        for (k, c) in corrections.iter().enumerate() {
+            c.validate(n)
+                .map_err(|e| HitlError::Input(format!("correction {k}: {e}")))?;
+            human.extend(c.factors(2 * k, weights)?);
+            lines.push(fit_line_at(&values.poses, &c.a)?);
+            lines.push(fit_line_at(&values.poses, &c.b)?);
+        }
+        let key: Vec<Vec<Key>> = human.iter().map(|f| f.keys().to_vec()).collect();
+        self.graph.truncate(self.base_factors);
+        for _ in 0..lines.len() {
+            self.graph.add_line();
+        }
+        for f in human {
+            self.graph.add_factor(f)?;
+        }
+        self.graph.check_anchored()?;
+        match self.patterns.iter().position(|(k, _)| *k == key) {
+            Some(hit) => {
+                let (_, pattern) = self.patterns.remove(hit);
+                self.graph.set_pattern(pattern);
+            }
+            None => self.analyses += 1,
+        }
+        values.lines = lines;
+        let result = optimize(&mut self.graph, &mut values, params);
+        if let Some(pattern) = self.graph.take_pattern() {
+            if self.patterns.len() >= PATTERN_CACHE {
+                self.patterns.remove(0);
+            }
+            self.patterns.push((key, pattern));
+        }
+        Ok((values, result?))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A square corridor walked twice: the second lap's poses are the first's, and each pose
+    /// sees the bottom wall y = 0 (as robot-frame points).
+    fn two_laps() -> (
+        FactorGraph,
+        Vec<Pose2>,
+        Vec<PoseObservations>,
+        Vec<PoseObservations>,
+    ) {
+        let n = 40;
+        let truth: Vec<Pose2> = (0..n)
+            .map(|i| Pose2::new(0.5 * (i % 20) as f64, 1.0, 0.0))
+            .collect();
+        let info = [[100.0, 0.0, 0.0], [0.0, 100.0, 0.0], [0.0, 0.0, 1000.0]];
+        let edges: Vec<(usize, usize)> = (0..n - 1).map(|i| (i, i + 1)).collect();
+        let z: Vec<[f64; 3]> = edges
+            .iter()
+            .map(|&(i, j)| truth[i].between(truth[j]).to_array())
+            .collect();
+        let graph = FactorGraph::from_edges(n, &edges, &z, &vec![info; n - 1], 0).unwrap();
+        let seen = |i: usize| {
+            let x = truth[i];
+            let pts: Vec<[f64; 2]> = (0..5)
+                .map(|k| {
+                    x.inverse()
+                        .transform_point([x.x - 0.4 + 0.2 * k as f64, 0.0])
+                })
+                .collect();
+            (i, pts)
+        };
+        let a = (2..8).map(seen).collect();
+        let b = (22..28).map(seen).collect();
+        (graph, truth, a, b)
+    }
+
+    fn params() -> SolverParams {
+        SolverParams {
+            watchdog_steps: 0,
+            ..SolverParams::default()
+        }
+    }
+
+    #[test]
+    fn repeated_structures_reuse_their_analysis_and_give_the_same_answer() {
+        let (graph, truth, a, b) = two_laps();
+        let mut engine = CorrectionEngine::new(graph).unwrap();
+        let w = HumanWeights {
+            sigma_f: 0.03,
+            k1: 1e6,
+            k2: 1e7,
+            average_points: false,
+        };
+        let c = CorrectionSpec {
+            mode: RelationMode::Colocation,
+            a,
+            b,
+        };
+        // Start off the truth: the second lap turned by 3 degrees.
+        let mut start = truth.clone();
+        for p in start.iter_mut().skip(20) {
+            p.theta += 0.05;
+        }
+        let (v1, r1) = engine
+            .solve(start.clone(), std::slice::from_ref(&c), &w, &params())
+            .unwrap();
+        assert_eq!(engine.analyses(), 1);
+        let (_, r0) = engine.solve(start.clone(), &[], &w, &params()).unwrap();
+        assert_eq!(engine.analyses(), 2);
+        assert!(r0.final_chi2 < 1e-9);
+        let (v2, r2) = engine
+            .solve(start, std::slice::from_ref(&c), &w, &params())
+            .unwrap();
+        assert_eq!(
+            engine.analyses(),
+            2,
+            "the first structure's analysis is re-used"
+        );
+        assert!(!r2.symbolic_computed);
+        assert_eq!(r1.final_chi2.to_bits(), r2.final_chi2.to_bits());
+        assert_eq!(v1.poses, v2.poses);
+        assert_eq!(v1.lines.len(), 2);
+        engine.clear_cache();
+        let (_, r3) = engine
+            .solve(truth, std::slice::from_ref(&c), &w, &params())
+            .unwrap();
+        assert!(r3.symbolic_computed);
+        assert_eq!(engine.analyses(), 3);
+        // The base factors' chi2 alone is what the map's measurements say of the result.
+        let base = engine.base_chi2(&v2.poses).unwrap();
+        assert!(base <= r2.final_chi2 + 1e-12);
+    }
+
+    #[test]
+    fn a_bad_correction_is_refused_and_changes_nothing() {
+        let (graph, truth, a, _) = two_laps();
+        let mut engine = CorrectionEngine::new(graph).unwrap();
+        let w = HumanWeights {
+            sigma_f: 0.03,
+            k1: 1e6,
+            k2: 1e7,
+            average_points: false,
+        };
+        let bad = CorrectionSpec {
+            mode: RelationMode::Collinear,
+            a: a.clone(),
+            b: vec![(99, vec![[0.0, 0.0]])],
+        };
+        let err = engine
+            .solve(truth.clone(), &[bad], &w, &params())
+            .unwrap_err();
+        assert!(err.to_string().contains("out of range"), "{err}");
+        let shared = CorrectionSpec {
+            mode: RelationMode::Collinear,
+            a: a.clone(),
+            b: a,
+        };
+        assert!(engine
+            .solve(truth.clone(), &[shared], &w, &params())
+            .is_err());
+        let (_, r) = engine.solve(truth, &[], &w, &params()).unwrap();
+        assert!(r.final_chi2 < 1e-12);
+    }
+}
