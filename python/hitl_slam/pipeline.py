@@ -104,8 +104,9 @@ def solve_all(
     config: Config = DEFAULT,
     start: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray, _core.SolveReport]:
-    """Joint optimization (§4.3) of poses and the lines of every correction in ``active``,
-    from ``start`` (default: the map's poses), over the map's ORIGINAL relative-pose factors."""
+    """Joint optimization (docs/ALGORITHM.md §4.3) of poses and the lines of every correction in
+    ``active``, from ``start`` (default: the map's poses), over the map's ORIGINAL relative-pose
+    factors."""
     x0 = np.ascontiguousarray(map.poses if start is None else start, dtype=np.float64)
     engine = _core.Graph(x0.shape[0], map.edges, map.measurements, map.information, map.anchor)
     lines = []
@@ -145,8 +146,8 @@ def solve_all(
 def explicit_and_backpropagate(
     map: Map, poses: FloatArray, h: Interpretation
 ) -> tuple[FloatArray, FloatArray]:
-    """§4.1 then §4.2: the rigid move of every pose from ``min(X_b)`` on, and the chain from
-    ``max(X_a)`` made to meet it. Returns (new poses, the transform)."""
+    """docs/ALGORITHM.md §4.1 then §4.2: the rigid move of every pose from ``min(X_b)`` on, and
+    the chain from ``max(X_a)`` made to meet it. Returns (new poses, the transform)."""
     transform = _core.explicit_transform(
         h.mode.value, np.asarray(h.line_a, dtype=np.float64), np.asarray(h.line_b, dtype=np.float64)
     )
@@ -278,7 +279,8 @@ def apply_correction(
     t0 = time.perf_counter()
     current = np.ascontiguousarray(poses, dtype=np.float64)
     h = interpret(map, current, drawn, config)
-    # Where the error goes: the odometry, re-measured where its scans contradict it (§I.5).
+    # Where the error goes: the odometry, re-measured where its scans contradict it
+    # (docs/ALGORITHM.md §I.5).
     map = checked_map(map, config)
     t1 = time.perf_counter()
     if h.mode is Mode.COLOCATION and config.colocation_guard > 0:
