@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Speed of the inconsistency metric (ALGORITHM.md §6) on the Freiburg 079 corrected log
+"""Speed of the inconsistency metric (docs/ALGORITHM.md §6) on the Freiburg 079 corrected log
 (4791 scans, 1.69 M points): one core and all cores, median of repeats. Meant to run as
 
     python benches/metric.py --write benches/README.md

@@ -1,4 +1,4 @@
-"""Tests of the interpretation of drawn corrections (ALGORITHM.md §3): EM accuracy and clutter
+"""Tests of the interpretation of drawn corrections (docs/ALGORITHM.md §3): EM accuracy and clutter
 rejection on synthetic corridors, the grid index against brute force, drawing-direction invariance,
 every pair rule and rejection, and the Rust kernels against numpy written from the formulas.
 """

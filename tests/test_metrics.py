@@ -61,7 +61,7 @@ def moved(poses: FloatArray, a: tuple[float, float, float]) -> FloatArray:
     )
 
 
-# --- an independent reference of ALGORITHM.md §6, written from the definition ------------------
+# --- an independent reference of docs/ALGORITHM.md §6.1, written from the definition -------------
 
 
 def _cells_crossed(a: FloatArray, b: FloatArray, width: int, height: int) -> set[tuple[int, int]]:
@@ -182,7 +182,7 @@ def test_a_perfect_map_scores_near_zero_and_a_damaged_one_does_not(
 ) -> None:
     good = inconsistency(perfect.map).total_m2
     bad = inconsistency(damaged.map).total_m2
-    # ALGORITHM.md §6: a ground-truth corridor map scores under 3% of its damaged version.
+    # docs/ALGORITHM.md §6.2: a ground-truth corridor map scores under 3% of its damaged version.
     assert bad > 200.0
     assert good < 0.03 * bad
     # The damaged map's own scans at their true poses are the perfect map again.

@@ -251,7 +251,8 @@ def _small_map() -> tuple[Map, list[Interpretation]]:
 def _joint_residuals(
     m: Map, hs: list[Interpretation], poses: FloatArray, lines: FloatArray
 ) -> FloatArray:
-    """The §4.3 cost written independently: odometry, then per correction R_a, R_b, R_p."""
+    """The docs/ALGORITHM.md §4.3 cost written independently: odometry, then per correction R_a,
+    R_b, R_p."""
     from hitl_slam.graph import PoseGraph
 
     graph = PoseGraph(

@@ -1,6 +1,7 @@
 """Figures: files are written atomically with the asked size and format, the information-matrix
-pattern has exactly the blocks of J^T J (checked against a numerical Jacobian of the §4.3
-residuals), bad inputs are InputErrors, and importing the package does not import matplotlib.
+pattern has exactly the blocks of J^T J (checked against a numerical Jacobian of the
+docs/ALGORITHM.md §4.3 residuals), bad inputs are InputErrors, and importing the package does not
+import matplotlib.
 """
 
 from __future__ import annotations
@@ -311,8 +312,8 @@ def _tiny_map() -> Map:
 
 
 def _residuals(m: Map, corrections: list[Interpretation], x: FloatArray) -> FloatArray:
-    """Every residual of §4.3 (unweighted; the pattern is what matters) as a function of the
-    stacked variables: 3 per pose, then (phi, rho) per line."""
+    """Every residual of docs/ALGORITHM.md §4.3 (unweighted; the pattern is what matters) as a
+    function of the stacked variables: 3 per pose, then (phi, rho) per line."""
     n = m.num_poses
     poses = x[: 3 * n].reshape(n, 3)
     lines = x[3 * n :].reshape(-1, 2)

@@ -263,7 +263,7 @@ class Snap:
 
 @final
 class EmFit:
-    """EM's interpretation of one drawn segment (ALGORITHM.md §3). The line is
+    """EM's interpretation of one drawn segment (docs/ALGORITHM.md §3.3). The line is
     ``n . p = rho`` with ``n = (cos phi, sin phi)``, phi in (-pi/2, pi/2]; ``extent`` is its
     ``(2, 2)`` endpoints; the observation set is ``candidates[weights > 0.5]``."""
 
@@ -359,6 +359,6 @@ def inconsistency(
     shape: tuple[int, int] | None = None,
     threads: int = 0,
 ) -> tuple[float, NDArray[np.float64] | None, NDArray[np.float64]]:
-    """The inconsistency metric (ALGORITHM.md §6): ``(total_m2, heat (H, W) or None, origin)``;
+    """The inconsistency metric (docs/ALGORITHM.md §6): ``(total_m2, heat (H, W) or None, origin)``;
     the grid covers the data unless ``origin`` and ``shape`` ``(H, W)`` are given; ``threads``
     0 uses rayon's pool, n a local pool of n threads."""

@@ -1,4 +1,4 @@
-"""Every tunable constant of the method in one documented object (ALGORITHM.md), with units.
+"""Every tunable constant of the method in one documented object (docs/ALGORITHM.md), with units.
 
 Pass a :class:`Config` (or use :data:`DEFAULT`) wherever behaviour depends on a constant; nothing
 else in the package hard-codes these numbers.
@@ -20,7 +20,7 @@ __all__ = ["DEFAULT", "Config"]
 class Config:
     """Constants of HitL-SLAM. Units in brackets.
 
-    Motion model (ALGORITHM.md §1), used when an edge has no usable covariance:
+    Motion model (docs/ALGORITHM.md §1.3), used when an edge has no usable covariance:
     ``sigma_t = max(sigma_t0, k_t |dt|)``, ``sigma_theta = max(sigma_theta0, k_theta |dtheta| +
     k_theta_t |dt|)``.
 
@@ -35,7 +35,7 @@ class Config:
     Factors (§4.3): ``sigma_f`` point-to-line weight, ``k1`` / ``k2`` weights of the relation
     residual R_p, ``average_points`` for the paper's RMS form of R_a/R_b.
 
-    Inconsistency metric (§6): ``metric_surface_cells``, ``metric_min_stop`` and
+    Inconsistency metric (§6.2): ``metric_surface_cells``, ``metric_min_stop`` and
     ``metric_grazing_deg`` are its robustness rules (a) and (b); the grid is ``grid_resolution``.
 
     Chosen defaults and why: sigma_f = 3 cm is the laser's range noise plus wall roughness, so a
@@ -45,7 +45,7 @@ class Config:
     just between the line variables.
     """
 
-    # §1 motion model
+    # §1.3 motion model
     sigma_t0: float = 0.03  # [m]
     k_t: float = 0.05  # [m/m]
     sigma_theta0: float = 0.01  # [rad]
@@ -88,12 +88,13 @@ class Config:
     # factors) score a chi2 above this quantile of chi2 with 3 x edges dof is tried again with
     # the passes nearest the drawings, then refused with the figures (0 = off)
     consistency_guard: float = 0.999
-    # where EM finds no line under a segment, find the pass drawn on by itself (ALGORITHM §I.4;
-    # off: on the standard evaluation it took Freiburg 079 from 1.2 to 5.1 deg)
+    # where EM finds no line under a segment, find the pass drawn on by itself
+    # (docs/ALGORITHM.md §I.4; off: on the standard evaluation it took Freiburg 079 from 1.2 to
+    # 5.1 deg)
     pass_by_pass: bool = False
-    # §6 metric / occupancy export
+    # §6.1 metric / occupancy export
     grid_resolution: float = 0.05  # [m]
-    # §6 inconsistency metric: its robustness rules (without them a perfect map scores 100s m^2)
+    # §6.2 inconsistency metric: its robustness rules (without them a perfect map scores 100s m^2)
     metric_surface_cells: float = 2.0  # [cells] (a) free space ends this far from the hit surface
     metric_min_stop: float = 0.10  # [m] (a) and at least this far before the hit, along the beam
     metric_grazing_deg: float = 15.0  # [deg] (b) beams meeting a surface below this carve nothing

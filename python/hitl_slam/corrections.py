@@ -1,5 +1,5 @@
 """What a person says about a map: two drawn segments and a mode, and what the system understood
-from them (ALGORITHM.md §2). Plain data with a JSON form, shared by the interpreter, the solver
+from them (docs/ALGORITHM.md §2). Plain data with a JSON form, shared by the interpreter, the solver
 pipeline, the session journal and the JSON Lines corrections files.
 """
 

@@ -1,6 +1,7 @@
-"""Interpreting a drawn correction (ALGORITHM.md §3): EM finds the feature under each drawn segment
-and the observations on it (in the Rust core), then the pair rules here (pose threshold, one visit
-per segment, no shared poses, time order) turn them into ``h = <P_a, P_b, S_a, S_b, X_a, X_b, m>``.
+"""Interpreting a drawn correction (docs/ALGORITHM.md §3): EM finds the feature under each drawn
+segment and the observations on it (in the Rust core), then the pair rules here (pose threshold,
+one visit per segment, no shared poses, time order) turn them into
+``h = <P_a, P_b, S_a, S_b, X_a, X_b, m>``.
 """
 
 from __future__ import annotations
@@ -35,9 +36,9 @@ the robot went elsewhere, typically hundreds of poses later. Ten poses is a few 
 at usual scan rates: longer than those holes and far shorter than a loop."""
 
 TOLERANCE_MIXING = 1e-4
-"""[1] EM also waits for the mixing weight to settle (besides the §3 line tolerances): a drawing a
-few sigma_em beside its wall lets the line settle while pi still climbs from near zero, and
-stopping there would leave every weight under 0.5."""
+"""[1] EM also waits for the mixing weight to settle (besides the line tolerances of
+docs/ALGORITHM.md §3.3): a drawing a few sigma_em beside its wall lets the line settle while pi
+still climbs from near zero, and stopping there would leave every weight under 0.5."""
 
 
 @dataclass
@@ -228,8 +229,9 @@ def _joint_visits(
 def _pair_rules(
     a: _Selection, b: _Selection, visit_gap: int, notes: list[str]
 ) -> tuple[_Selection, _Selection, NDArray[np.int64], NDArray[np.int64], bool]:
-    """The design's pair rules (§3): refuse one set selected twice; keep one visit per segment
-    (the one with most points); drop poses that see both; order the pair in time."""
+    """The design's pair rules (docs/ALGORITHM.md §3.5): refuse one set selected twice; keep one
+    visit per segment (the one with most points); drop poses that see both; order the pair in
+    time."""
     if np.array_equal(a.rows, b.rows):
         raise CorrectionRejected(
             f"segments a and b select the same observations ({a.rows.shape[0]} points "
@@ -295,7 +297,7 @@ def interpret(
     visit_gap: int | None = None,
     nearest_visits: bool = False,
 ) -> Interpretation:
-    """What the person meant by ``drawn`` on the map shown with ``poses`` (ALGORITHM.md §3).
+    """What the person meant by ``drawn`` on the map shown with ``poses`` (docs/ALGORITHM.md §3).
 
     For each segment: the points within ``r_c = candidate_band * sigma_h`` of it (from a grid
     index built once per call), EM from the drawn line, ``S`` = points with

@@ -1,6 +1,6 @@
 """A map with observations: poses, the laser points each pose saw (robot frame), and the ORIGINAL
 relative-pose factors between poses. Corrections move poses; the observations and factors never
-change, so every solve starts from what the robot actually measured (ALGORITHM.md §1).
+change, so every solve starts from what the robot actually measured (docs/ALGORITHM.md §1).
 """
 
 from __future__ import annotations
@@ -23,13 +23,13 @@ class InformationSource(enum.IntEnum):
     """Where an edge's information matrix came from."""
 
     INPUT = 0  # the input's own (usable, SPD) covariance or information
-    MOTION_MODEL = 1  # ALGORITHM.md §1 motion model, the input had none usable
+    MOTION_MODEL = 1  # docs/ALGORITHM.md §1.3 motion model, the input had none usable
 
 
 def motion_model_information(
     measurements: NDArray[np.float64], config: Config = DEFAULT
 ) -> NDArray[np.float64]:
-    """(M, 3, 3) information from the §1 motion model for relative poses (M, 3)."""
+    """(M, 3, 3) information from the §1.3 motion model for relative poses (M, 3)."""
     dt = np.hypot(measurements[:, 0], measurements[:, 1])
     dth = np.abs(measurements[:, 2])
     sigma_t = np.maximum(config.sigma_t0, config.k_t * dt)
@@ -211,7 +211,7 @@ class Map:
         source: str | None = None,
     ) -> Map:
         """A map from absolute poses and robot-frame scans; the chain factors are built once from
-        consecutive poses, ``z = x_i^-1 x_{i+1}`` (§1). ``covariances`` (N, 3, 3) are per-pose
+        consecutive poses, ``z = x_i^-1 x_{i+1}`` (§1.2). ``covariances`` (N, 3, 3) are per-pose
         covariances; an edge uses the inverse of the sum of its two poses' covariances when that
         is SPD, otherwise the motion model, and says which in ``information_source``."""
         poses = np.ascontiguousarray(poses, dtype=np.float64)

@@ -1,6 +1,6 @@
-"""How good is a map: the paper's inconsistency metric (ALGORITHM.md §6), trajectory error against
-ground truth (ATE), the relative-pose error against benchmark relations (Kuemmerle et al. 2009),
-and the Table 1 feature errors (angles between walls, spacing between parallel walls).
+"""How good is a map: the paper's inconsistency metric (docs/ALGORITHM.md §6), trajectory error
+against ground truth (ATE), the relative-pose error against benchmark relations (Kuemmerle et al.
+2009), and the Table 1 feature errors (angles between walls, spacing between parallel walls).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ FloatArray = NDArray[np.float64]
 
 @dataclass(frozen=True, eq=False)
 class Inconsistency:
-    """The inconsistency metric of a map under some poses (ALGORITHM.md §6).
+    """The inconsistency metric of a map under some poses (docs/ALGORITHM.md §6.1).
 
     Attributes:
         total_m2: ``I = res^2 sum_c (F_c O_c - B_c)`` [m^2]: summed over ordered pairs of scans
@@ -78,7 +78,7 @@ def inconsistency(
 
     Free space of a scan: the cells crossed (exact grid traversal) by the ray from the sensor (the
     pose's position) to each hit; occupied: the hit cells; each cell counts once per scan. The
-    three robustness rules of §6 apply, set by ``config``: a beam's free space stops
+    three robustness rules of §6.2 apply, set by ``config``: a beam's free space stops
     ``metric_surface_cells`` cells short of its surface measured across it (at least
     ``metric_min_stop`` m along the beam); beams meeting their surface at under
     ``metric_grazing_deg`` degrees carve none; the surface's tangent at a hit comes from the

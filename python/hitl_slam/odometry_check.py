@@ -1,8 +1,9 @@
-"""The odometry checked against the scans (docs/ALGORITHM.md §I.4): every step of the chain,
+"""The odometry checked against the scans (docs/ALGORITHM.md §I.5): every step of the chain,
 ``z_k = x_k^-1 x_(k+1)``, is compared with a scan-to-scan match of the two scans it joins. Where
 their turns disagree far beyond both variances (a gyro fault, a wheel slip: the paper's 30-degree
-sensor failure), the step's heading variance is widened by the disagreement, so a correction's
-back-propagation and joint solve put the error there instead of spreading it over the loop.
+sensor failure) and the matches across the step confirm it, the step's turn is re-measured: its
+heading becomes the scan match's, with the match's variance, so a correction's back-propagation
+and joint solve put the error there instead of spreading it over the loop.
 Steps the scans cannot check (too little overlap, a featureless view) keep their information.
 
 The map itself is not changed: its poses stay the odometry's until a person corrects it; only

@@ -1,4 +1,4 @@
-"""The wall a drawing meant, found pass by pass (docs/ALGORITHM.md §I.1): where several passes of
+"""The wall a drawing meant, found pass by pass (docs/ALGORITHM.md §I.4): where several passes of
 the robot by one wall disagree a little each (a half-repaired map), their union near the drawing is
 a blur a few decimetres wide in which neither EM nor a Hough search finds one line, although each
 pass on its own is a crisp line and the person drew on one of them. So the points near the drawing

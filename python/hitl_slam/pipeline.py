@@ -188,8 +188,8 @@ def solve_all(
 def explicit_and_backpropagate(
     map: Map, poses: FloatArray, h: Interpretation
 ) -> tuple[FloatArray, FloatArray]:
-    """§4.1 then §4.2: the rigid move of every pose from ``min(X_b)`` on, and the chain from
-    ``max(X_a)`` made to meet it. Returns (new poses, the transform)."""
+    """docs/ALGORITHM.md §4.1 then §4.2: the rigid move of every pose from ``min(X_b)`` on, and
+    the chain from ``max(X_a)`` made to meet it. Returns (new poses, the transform)."""
     transform = _core.explicit_transform(
         h.mode.value, np.asarray(h.line_a, dtype=np.float64), np.asarray(h.line_b, dtype=np.float64)
     )
@@ -321,7 +321,8 @@ def apply_correction(
     t0 = time.perf_counter()
     current = np.ascontiguousarray(poses, dtype=np.float64)
     h = interpret(map, current, drawn, config)
-    # Where the error goes: the odometry, re-measured where its scans contradict it (§I.5).
+    # Where the error goes: the odometry, re-measured where its scans contradict it
+    # (docs/ALGORITHM.md §I.5).
     map = checked_map(map, config)
     t1 = time.perf_counter()
     if h.mode is Mode.COLOCATION and config.colocation_guard > 0:

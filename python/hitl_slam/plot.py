@@ -499,11 +499,12 @@ def _pairs(rows: IntArray, cols: IntArray) -> tuple[IntArray, IntArray]:
 
 
 def information_matrix(map: Map, interpretations: Sequence[Interpretation]) -> Any:
-    """The block sparsity of the normal equations ``J^T J`` of the joint problem (§4.3), one
-    entry per variable block, in natural order: poses ``0..N-1``, then lines ``N + 2k`` (a) and
-    ``N + 2k + 1`` (b) of correction k. Returns a symmetric ``scipy.sparse.csr_array`` (int32)
-    whose entries say where a block comes from: 1 relative-pose factors (and the anchor's prior),
-    ``2 + k`` the human factors of correction k (a block already present keeps the first source).
+    """The block sparsity of the normal equations ``J^T J`` of the joint problem
+    (docs/ALGORITHM.md §4.3), one entry per variable block, in natural order: poses ``0..N-1``,
+    then lines ``N + 2k`` (a) and ``N + 2k + 1`` (b) of correction k. Returns a symmetric
+    ``scipy.sparse.csr_array`` (int32) whose entries say where a block comes from: 1 relative-pose
+    factors (and the anchor's prior), ``2 + k`` the human factors of correction k (a block already
+    present keeps the first source).
 
     The blocks are those of the Jacobian's actual dependencies: R_a couples each pose of X_a
     with line a (R_b likewise); R_p couples the two lines, and for colocation and collinear all
@@ -644,7 +645,7 @@ def write_information_matrix(
 
 
 # --------------------------------------------------------------------------------------------
-# Inconsistency heat map (§6)
+# Inconsistency heat map (docs/ALGORITHM.md §6.1)
 
 
 def write_heat_map(

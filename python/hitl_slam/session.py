@@ -1,6 +1,6 @@
 """An editing session on a map: corrections one at a time, undo and redo of any depth, save; every
 event journaled (:mod:`hitl_slam.journal`) before the map in memory changes, so reopening the file
-rebuilds the same state bit for bit from the journal's pose checkpoints (ALGORITHM.md §5).
+rebuilds the same state bit for bit from the journal's pose checkpoints (docs/ALGORITHM.md §5).
 """
 
 from __future__ import annotations

@@ -87,7 +87,7 @@ def read_carmen(
     """Read a CARMEN log into a :class:`Map` with one pose per kept laser scan.
 
     Frames: a map pose is the pose of the LASER (``t_world_laser``), and the points are in the
-    laser frame, so the sensor origin is the pose position (ALGORITHM.md §1) and the Map's
+    laser frame, so the sensor origin is the pose position (docs/ALGORITHM.md §1.1) and the Map's
     "robot frame" is the laser frame. CARMEN already logs the laser pose in the pose fields of
     FLASER (``x y theta``; ``odom_*`` is the robot's odometry) and ROBOTLASER1 (``laser_pose``),
     i.e. the robot pose composed with ``PARAM robot_frontlaser_offset`` (fr079.clf: ``x y`` =
@@ -107,7 +107,7 @@ def read_carmen(
     Lines: if the log has ROBOTLASER1 lines they are the scans and FLASER lines (the same scans in
     the old format) are skipped; otherwise the FLASER lines are. Other tags (ODOM, RLASER,
     RAWLASER*, TRUEPOS, NEFF, ...) are counted in ``map.metadata["skipped_lines"]`` and logged.
-    Timestamps are the ipc timestamps. Edges: the consecutive-pose chain with the §1 motion model.
+    Timestamps are the ipc timestamps. Edges: the consecutive-pose chain with the §1.3 motion model.
 
     Subsampling: with ``min_travel > 0`` (m) or ``min_rotation > 0`` (rad), a scan is kept only
     when the pose moved at least ``min_travel`` or turned at least ``min_rotation`` since the

@@ -60,10 +60,11 @@ def read_covars(path: PathLike, config: Config = DEFAULT) -> Map:
     original exporter wrote it, it is assumed to be in the robot frame of its pose, which is the
     frame of the chain edge leaving that pose, so it is used as is: edge (i, i+1) gets the
     information ``(C_i + C_{i+1})^-1`` when that is symmetric positive definite, otherwise the
-    §1 motion model (``map.information_source`` says which). An all-zero covariance means
-    unknown, and both edges touching that pose use the motion model. The covariances as read are
-    kept in ``map.metadata["pose_covariances"]`` (``(N, 3, 3)``, zeros = unknown) and the
-    timestamp in ``map.metadata["covars_timestamp"]``, so :func:`write_covars` reproduces them.
+    motion model of docs/ALGORITHM.md §1.3 (``map.information_source`` says which). An all-zero
+    covariance means unknown, and both edges touching that pose use the motion model. The
+    covariances as read are kept in ``map.metadata["pose_covariances"]`` (``(N, 3, 3)``, zeros =
+    unknown) and the timestamp in ``map.metadata["covars_timestamp"]``, so :func:`write_covars`
+    reproduces them.
 
     Raises:
         InputError: ``{path}:{line}: what; what to do`` for a missing name or timestamp, a line

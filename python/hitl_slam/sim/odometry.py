@@ -1,6 +1,7 @@
 """Odometry from a true trajectory: the true relative motions plus Gaussian noise that grows with
-the distance and the rotation of each step (as the motion model of ALGORITHM.md §1 assumes), and
-injectable faults: a heading jump (a sensor failure) or a slow heading drift (a bent hallway).
+the distance and the rotation of each step (as the motion model of docs/ALGORITHM.md §1.3
+assumes), and injectable faults: a heading jump (a sensor failure) or a slow heading drift (a bent
+hallway).
 """
 
 from __future__ import annotations

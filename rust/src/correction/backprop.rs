@@ -1,9 +1,10 @@
-//! Error back-propagation, COP-SLAM style (§4.2). The explicit move opens a gap between the last
-//! unmoved pose and the first moved one; it is closed by spreading the needed change over the
-//! relative transforms of the chain between `max(X_a)` (fixed) and `min(X_b)` (already moved):
-//! first the rotation, weighted by each edge's rotational variance, then - after recomposing -
-//! the remaining translation, weighted by each edge's (isotropic) translational variance. Weights
-//! sum to exactly one, so the chain meets the moved block exactly. O(chain length).
+//! Error back-propagation, COP-SLAM style (docs/ALGORITHM.md §4.2). The explicit move opens a gap
+//! between the last unmoved pose and the first moved one; it is closed by spreading the needed
+//! change over the relative transforms of the chain between `max(X_a)` (fixed) and `min(X_b)`
+//! (already moved): first the rotation, weighted by each edge's rotational variance, then - after
+//! recomposing - the remaining translation, weighted by each edge's (isotropic) translational
+//! variance. Weights sum to exactly one, so the chain meets the moved block exactly. O(chain
+//! length).
 
 use crate::error::{input, Result};
 use crate::se2::{rotate, wrap_angle, Pose2};

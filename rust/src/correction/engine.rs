@@ -1,5 +1,5 @@
 //! The correction engine: the map's own relative-pose factors held once, with the human
-//! corrections of a session solved jointly on top of them (ALGORITHM.md §4.3), re-using the
+//! corrections of a session solved jointly on top of them (docs/ALGORITHM.md §4.3), re-using the
 //! symbolic analysis of every structure it has solved recently.
 //!
 //! A session applies, undoes and redoes corrections; each step solves "the base graph plus the
@@ -97,7 +97,7 @@ impl CorrectionSpec {
         Ok(())
     }
 
-    /// The factors of this correction (ALGORITHM.md §4.3) over lines `la` and `la + 1`: one
+    /// The factors of this correction (docs/ALGORITHM.md §4.3) over lines `la` and `la + 1`: one
     /// point-to-line factor per observing pose and segment, then the relation R_p.
     pub fn factors(&self, la: usize, w: &HumanWeights) -> Result<Vec<Box<dyn Factor>>> {
         let lb = la + 1;

@@ -1,5 +1,6 @@
-//! The explicit correction (§4.1): the rigid SE(2) transform `A` that brings the drawn feature
-//! `P_b` into the mode's relation with `P_a`, moving nothing along the mode's null-space.
+//! The explicit correction (docs/ALGORITHM.md §4.1): the rigid SE(2) transform `A` that brings the
+//! drawn feature `P_b` into the mode's relation with `P_a`, moving nothing along the mode's
+//! null-space.
 //!
 //! Rotation: the smallest angle taking line b onto line a modulo pi (perpendicular: onto a
 //! direction perpendicular to a), about `cm_b`, the centre of `P_b`. Translation: colocation

@@ -1,4 +1,4 @@
-//! Closing the loop a person pointed at, before the joint solve (ALGORITHM.md §4.1, §4.2):
+//! Closing the loop a person pointed at, before the joint solve (docs/ALGORITHM.md §4.1, §4.2):
 //! a rigid move of everything observed after the corrected feature (`explicit`), then the gap it
 //! opens spread over the chain in between (`backprop`, COP-SLAM style).
 

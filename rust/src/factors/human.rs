@@ -1,4 +1,4 @@
-//! Human correction factors (ALGORITHM.md §4.3): each correction adds two line variables
+//! Human correction factors (docs/ALGORITHM.md §4.3): each correction adds two line variables
 //! `(phi, rho)` (points p on the line satisfy `n . p = rho`, `n = (cos phi, sin phi)`) and three
 //! kinds of residual blocks:
 //!

@@ -1,4 +1,4 @@
-//! EM for one drawn segment (ALGORITHM.md §3, steps 2-5): a two-component mixture over the
+//! EM for one drawn segment (docs/ALGORITHM.md §3.3): a two-component mixture over the
 //! candidates' signed distances `d_k` to the line, feature `N(0, sigma^2)` against clutter uniform
 //! over the band's width, refit by weighted total least squares until the line stops moving.
 //!
@@ -42,10 +42,10 @@ pub struct EmParams {
     pub tol_m: f64,
     /// ...turns less than `tol_rad`...
     pub tol_rad: f64,
-    /// ...and the mixing weight changes less than `tol_pi`. ALGORITHM.md §3 stops on the line
-    /// alone; when the drawing starts several sigma off the wall the line settles within a few
-    /// iterations while `pi` is still climbing from near zero, and stopping there would leave
-    /// every weight below 0.5 and the segment wrongly "empty".
+    /// ...and the mixing weight changes less than `tol_pi`. The design stopped on the line alone
+    /// (docs/ALGORITHM.md §3, Departures); when the drawing starts several sigma off the wall the
+    /// line settles within a few iterations while `pi` is still climbing from near zero, and
+    /// stopping there would leave every weight below 0.5 and the segment wrongly "empty".
     pub tol_pi: f64,
     /// At most this many E+M iterations (0: only the E-step at the drawn line).
     pub max_iterations: usize,

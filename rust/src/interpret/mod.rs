@@ -1,6 +1,6 @@
-//! Interpreting a drawn segment (ALGORITHM.md §3): a uniform-grid spatial index over the world
-//! points, the candidates within the band `r_c` of a segment, and the EM fit of the feature line
-//! (responsibilities, weighted total least squares, mixing weight, log-likelihood).
+//! Interpreting a drawn segment (docs/ALGORITHM.md §3.1 to §3.3): a uniform-grid spatial index
+//! over the world points, the candidates within the band `r_c` of a segment, and the EM fit of the
+//! feature line (responsibilities, weighted total least squares, mixing weight, log-likelihood).
 //!
 //! Lines are undirected: every quantity here is computed in a frame built from the segment's
 //! midpoint and a canonical normal, so drawing a segment either way gives bit-identical results.

@@ -1,8 +1,8 @@
 //! Finding the wall a person meant (issue 11): before EM, a drawn segment is snapped onto the
 //! dense line of observations that best explains it.
 //!
-//! EM started at the drawn line (ALGORITHM.md §3) fails when the drawing lies several `sigma_em`
-//! beside its wall and the band also holds other copies, clutter or other passes: every
+//! EM started at the drawn line (docs/ALGORITHM.md §3.3) fails when the drawing lies several
+//! `sigma_em` beside its wall and the band also holds other copies, clutter or other passes: every
 //! responsibility starts near zero, the mixing weight collapses, and the segment comes back
 //! "empty" although a dense copy of the wall lies 15 cm away. A careful person draws near the
 //! copy they mean and roughly along it, so the search here scores every line near the drawing by

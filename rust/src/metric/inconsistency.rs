@@ -1,6 +1,6 @@
 //! Free and occupied cells of every scan, and the inconsistency `I = res^2 sum_c (F_c O_c - B_c)`
-//! (ALGORITHM.md §6), counted per cell in one pass over the ray cells (rayon over scans), plus the
-//! direct pairwise sum over ordered scan pairs that the counter form must equal exactly.
+//! (docs/ALGORITHM.md §6.1), counted per cell in one pass over the ray cells (rayon over scans),
+//! plus the direct pairwise sum over ordered scan pairs that the counter form must equal exactly.
 
 use rayon::prelude::*;
 
@@ -13,7 +13,8 @@ pub const MAX_PAIRWISE_SCANS: usize = 2000;
 /// Per-worker counters cost 16 bytes a cell; fewer workers run when more would exceed this.
 const MEMORY_BUDGET_BYTES: usize = 2 << 30;
 
-/// The robustness rules of ALGORITHM.md §6, without which a perfect map scores hundreds of m^2.
+/// The robustness rules of docs/ALGORITHM.md §6.2, without which a perfect map scores hundreds of
+/// m^2.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MetricParams {
     /// (a) A beam's free space stops this many cells short of the surface it hits, measured
@@ -772,7 +773,8 @@ mod tests {
         let perfect = metric(&corridor(0.0), 0.05, &params);
         let damaged = metric(&corridor(4f64.to_radians()), 0.05, &params);
         assert!(damaged.total_m2 > 200.0, "{}", damaged.total_m2);
-        // ALGORITHM.md §6: a ground-truth corridor map scores under 3% of its damaged version.
+        // docs/ALGORITHM.md §6.2: a ground-truth corridor map scores under 3% of its damaged
+        // version.
         assert!(
             perfect.total_m2 < 0.03 * damaged.total_m2,
             "perfect {} vs damaged {}",

@@ -1,4 +1,4 @@
-//! The inconsistency metric of ALGORITHM.md §6: the area that some scans of a map show as free
+//! The inconsistency metric of docs/ALGORITHM.md §6: the area that some scans of a map show as free
 //! space while other scans show it occupied, in m^2, on a fixed grid. A well-registered map scores
 //! near zero; every misregistered wall adds the area where other scans see through it.
 //!

@@ -45,7 +45,7 @@ fn extent_out(py: Python<'_>, line: &LineFit) -> Py<PyArray2<f64>> {
         .unbind()
 }
 
-/// EM's interpretation of one drawn segment (ALGORITHM.md §3).
+/// EM's interpretation of one drawn segment (docs/ALGORITHM.md §3.3).
 #[pyclass(module = "hitl_slam._core", name = "EmFit", frozen, get_all)]
 pub struct PyEmFit {
     /// `(K,)` int64 indices of the points within the band of the drawn segment, ascending.

@@ -22,11 +22,11 @@ fn vector<T: Copy>(a: ArrayView1<'_, T>) -> Cow<'_, [T]> {
     }
 }
 
-/// The inconsistency metric (ALGORITHM.md §6) of the map `poses` `(N, 3)`, robot-frame `points`
-/// `(P, 2)` in beam order, `offsets` `(N + 1,)`. Returns `(total_m2, heat, origin)`: `heat` is
-/// the `(H, W)` per-cell `F O - B` (row 0 at the origin's y) or None, `origin` the world
-/// `(x, y)` of the grid's lower-left corner. The grid covers the data (origin a multiple of
-/// the resolution) unless `origin` and `shape` `(H, W)` are given.
+/// The inconsistency metric (docs/ALGORITHM.md §6) of the map `poses` `(N, 3)`, robot-frame
+/// `points` `(P, 2)` in beam order, `offsets` `(N + 1,)`. Returns `(total_m2, heat, origin)`:
+/// `heat` is the `(H, W)` per-cell `F O - B` (row 0 at the origin's y) or None, `origin` the world
+/// `(x, y)` of the grid's lower-left corner. The grid covers the data (origin a multiple of the
+/// resolution) unless `origin` and `shape` `(H, W)` are given.
 #[pyfunction]
 #[pyo3(signature = (
     poses, points, offsets, *, resolution, surface_cells, min_stop, grazing_deg,

@@ -426,7 +426,7 @@ impl PyGraph {
         self.inner.num_lines()
     }
 
-    /// Adds one human correction (ALGORITHM.md §4.3): two line variables, the point-to-line
+    /// Adds one human correction (docs/ALGORITHM.md §4.3): two line variables, the point-to-line
     /// factors R_a / R_b (one block per observing pose) and the relation R_p. `*_poses[k]` is the
     /// pose that observed robot-frame point `*_points[k]`. Returns the two line indices.
     #[pyo3(signature = (mode, a_poses, a_points, b_poses, b_points, *, sigma_f, k1, k2, average_points = false))]
@@ -731,8 +731,8 @@ fn read_segment(
     Ok([[s[(0, 0)], s[(0, 1)]], [s[(1, 0)], s[(1, 1)]]])
 }
 
-/// The explicit correction's rigid transform `A = (x, y, theta)` (ALGORITHM.md §4.1) that brings
-/// segment `p_b` into the mode's relation with `p_a`; moved poses become `A * pose`.
+/// The explicit correction's rigid transform `A = (x, y, theta)` (docs/ALGORITHM.md §4.1) that
+/// brings segment `p_b` into the mode's relation with `p_a`; moved poses become `A * pose`.
 #[pyfunction]
 fn explicit_transform<'py>(
     py: Python<'py>,
@@ -749,7 +749,7 @@ fn explicit_transform<'py>(
     Ok(Array1::from_vec(t.to_array().to_vec()).into_pyarray(py))
 }
 
-/// COP-SLAM back-propagation (ALGORITHM.md §4.2): returns `poses` with `start+1 .. end-1`
+/// COP-SLAM back-propagation (docs/ALGORITHM.md §4.2): returns `poses` with `start+1 .. end-1`
 /// rewritten so the chain from `poses[start]` meets `poses[end]` (already moved); `original`
 /// are the poses before the move; `rot_var[k]`, `trans_var[k]` the variances of edge k -> k+1.
 #[pyfunction]
