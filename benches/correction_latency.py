@@ -33,6 +33,7 @@ from hitl_slam import pipeline
 from hitl_slam.config import DEFAULT
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected
+from hitl_slam.geometry import principal_axes, wrap
 from hitl_slam.map import Map
 from hitl_slam.pipeline import apply_correction
 from hitl_slam.sim.corridor import (
@@ -175,7 +176,7 @@ def fr079_case(repeats: int, log: Callable[[str], None]) -> dict[str, object] | 
         c = damaged[fault]
         rot = np.array([[math.cos(ang), -math.sin(ang)], [math.sin(ang), math.cos(ang)]])
         damaged[fault:, :2] = (damaged[fault:, :2] - c[:2]) @ rot.T + c[:2]
-        damaged[fault:, 2] = np.angle(np.exp(1j * (damaged[fault:, 2] + ang)))
+        damaged[fault:, 2] = wrap(damaged[fault:, 2] + ang)
     scans = [m.points[m.offsets[i] : m.offsets[i + 1]] for i in range(n)]
     m = Map.from_poses_and_scans(damaged, scans, name="fr079-damaged")
     fault = 400
@@ -216,9 +217,7 @@ def fr079_case(repeats: int, log: Callable[[str], None]) -> dict[str, object] | 
             w = world_now[sel]
             if len(w) < 20:
                 raise ValueError("wall barely seen")
-            centre = w.mean(0)
-            _, vecs = np.linalg.eigh((w - centre).T @ (w - centre))
-            dirn = vecs[:, 1]
+            centre, _, dirn = principal_axes(w)
             proj = (w - centre) @ dirn
             lo_q, hi_q = np.quantile(proj, [0.2, 0.8])
             return [

@@ -18,8 +18,9 @@ from numpy.typing import NDArray
 from hitl_slam.config import DEFAULT
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected
+from hitl_slam.geometry import fit_line
 from hitl_slam.map import Map
-from hitl_slam.pipeline import apply_correction, fit_line
+from hitl_slam.pipeline import apply_correction
 from hitl_slam.session import Session, apply_in_order
 from hitl_slam.sim.corridor import (
     INNER_BOTTOM,

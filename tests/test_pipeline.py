@@ -14,8 +14,9 @@ from scipy.optimize import least_squares
 from hitl_slam import InputError, _core
 from hitl_slam.config import DEFAULT
 from hitl_slam.corrections import Interpretation, Mode
+from hitl_slam.geometry import fit_line
 from hitl_slam.map import Map
-from hitl_slam.pipeline import chain_variances, explicit_and_backpropagate, fit_line, solve_all
+from hitl_slam.pipeline import chain_variances, explicit_and_backpropagate, solve_all
 from hitl_slam.sim.corridor import INNER_BOTTOM, OUTER_BOTTOM, OUTER_LEFT, World, corridor_loop
 from reference import compose, exp, whitened, wrap
 

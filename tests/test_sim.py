@@ -14,8 +14,8 @@ from numpy.typing import NDArray
 
 from hitl_slam.corrections import Mode
 from hitl_slam.errors import InputError
+from hitl_slam.geometry import to_world
 from hitl_slam.interpret import interpret
-from hitl_slam.map import to_world
 from hitl_slam.session import EntryStatus, Session
 from hitl_slam.sim import (
     FeaturePair,

@@ -24,10 +24,10 @@ from hitl_slam.config import DEFAULT
 from hitl_slam.corrections import DrawnCorrection, Interpretation
 from hitl_slam.corrections_file import read_corrections
 from hitl_slam.errors import InputError
+from hitl_slam.geometry import fit_line
 from hitl_slam.io.covars import write_covars
 from hitl_slam.map import Map
 from hitl_slam.metrics import inconsistency
-from hitl_slam.pipeline import fit_line
 from hitl_slam.session import Session
 from hitl_slam.sim import Scenario, SimulatedHuman, lost_poses_room
 from hitl_slam.web import SessionHost, create_app

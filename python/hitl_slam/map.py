@@ -14,9 +14,10 @@ from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
+from hitl_slam.geometry import chain_steps, to_world
 from hitl_slam.graph import PoseGraph
 
-__all__ = ["InformationSource", "Map", "motion_model_information", "to_world"]
+__all__ = ["InformationSource", "Map", "motion_model_information"]
 
 
 class InformationSource(enum.IntEnum):
@@ -38,45 +39,6 @@ def motion_model_information(
     info[:, 0, 0] = info[:, 1, 1] = 1.0 / sigma_t**2
     info[:, 2, 2] = 1.0 / sigma_th**2
     return info
-
-
-def to_world(
-    poses: NDArray[np.float64], owners: NDArray[np.int64], points: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """``p_world = R(theta) p + t`` for robot-frame ``points`` (K, 2) seen by ``poses[owners]``."""
-    # cos/sin once per pose, not once per point: maps have ~100 points per pose.
-    c, s = np.cos(poses[:, 2])[owners], np.sin(poses[:, 2])[owners]
-    x, y = points[:, 0], points[:, 1]
-    out = np.empty((points.shape[0], 2), dtype=np.float64)
-    out[:, 0] = c * x - s * y + poses[owners, 0]
-    out[:, 1] = s * x + c * y + poses[owners, 1]
-    return out
-
-
-def wrap(angles: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Angles [rad] wrapped to [-pi, pi)."""
-    return np.mod(angles + np.pi, 2 * np.pi) - np.pi
-
-
-def chain_steps(poses: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``(N - 1, 3)`` steps ``x_k^-1 x_(k+1)`` between consecutive poses ``(N, 3)``, heading
-    wrapped to [-pi, pi)."""
-    a, b = poses[:-1], poses[1:]
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-    dth = wrap(b[:, 2] - a[:, 2])
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, dth], axis=1)
-
-
-def compose(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Rows of ``a * b`` for one pose ``a`` (3,) and rows ``b`` (K, 3), heading in (-pi, pi]."""
-    c, s = np.cos(a[2]), np.sin(a[2])
-    theta = b[:, 2] + a[2]
-    theta = np.where(theta > np.pi, theta - 2 * np.pi, theta)
-    theta = np.where(theta <= -np.pi, theta + 2 * np.pi, theta)
-    return np.stack(
-        [a[0] + c * b[:, 0] - s * b[:, 1], a[1] + s * b[:, 0] + c * b[:, 1], theta], axis=1
-    )
 
 
 @dataclass(eq=False)

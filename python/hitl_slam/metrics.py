@@ -16,9 +16,9 @@ from numpy.typing import ArrayLike, NDArray
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
+from hitl_slam.geometry import fit_line
 from hitl_slam.io.relations import Relations, match_relations
 from hitl_slam.map import Map
-from hitl_slam.pipeline import fit_line
 
 __all__ = [
     "FeaturePair",

@@ -24,7 +24,8 @@ from numpy.typing import NDArray
 
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.map import Map, chain_steps, compose
+from hitl_slam.geometry import chain_steps, compose
+from hitl_slam.map import Map
 
 __all__ = ["OdometryCheck", "check_odometry", "checked_map"]
 

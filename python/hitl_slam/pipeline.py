@@ -25,7 +25,8 @@ from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected
-from hitl_slam.map import Map, chain_steps, compose, motion_model_information, wrap
+from hitl_slam.geometry import chain_steps, compose, fit_line, wrap
+from hitl_slam.map import Map, motion_model_information
 from hitl_slam.solve import robust_pairs
 
 __all__ = [
@@ -34,7 +35,6 @@ __all__ = [
     "chain_variances",
     "correction_engine",
     "explicit_and_backpropagate",
-    "fit_line",
     "solve_all",
 ]
 
@@ -118,16 +118,6 @@ def _chain_of(map: Map) -> _Chain:
 
 def _forget(cache: dict[int, _T], key: int, _ref: object) -> None:
     cache.pop(key, None)
-
-
-def fit_line(points: FloatArray) -> tuple[float, float]:
-    """Total-least-squares line ``(phi, rho)`` through world points ``(K, 2)``."""
-    centre = points.mean(axis=0)
-    d = points - centre
-    _, vecs = np.linalg.eigh(d.T @ d)
-    normal = vecs[:, 0]  # smallest eigenvalue: the normal direction
-    phi = float(np.arctan2(normal[1], normal[0]))
-    return phi, float(normal @ centre)
 
 
 def _observations(map: Map, rows: NDArray[np.int64]) -> tuple[NDArray[np.int64], FloatArray]:

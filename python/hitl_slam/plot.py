@@ -27,6 +27,7 @@ from scipy.sparse import csr_array  # type: ignore[import-untyped, unused-ignore
 
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import InputError
+from hitl_slam.geometry import principal_axes
 from hitl_slam.io.atomic import fsync_directory
 from hitl_slam.map import Map
 
@@ -238,11 +239,8 @@ def _observed(map: Map, world: FloatArray, rows: IntArray) -> FloatArray:
 
 def _fitted_segment(points: FloatArray) -> FloatArray:
     """(2, 2) endpoints of the total-least-squares line of ``points`` over their extent."""
-    centre = points.mean(axis=0)
-    d = points - centre
-    _, vecs = np.linalg.eigh(d.T @ d)
-    direction = vecs[:, 1]
-    proj = d @ direction
+    centre, _, direction = principal_axes(points)
+    proj = (points - centre) @ direction
     ends: FloatArray = np.stack([centre + proj.min() * direction, centre + proj.max() * direction])
     return ends
 

@@ -10,6 +10,8 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from hitl_slam.geometry import principal_axes
+
 __all__ = ["extract_walls"]
 
 FloatArray = NDArray[np.float64]
@@ -74,9 +76,7 @@ def extract_walls(
             continue
         # Refit with total least squares, then recompute the inliers.
         q = p[inl]
-        centre = q.mean(axis=0)
-        _, vecs = np.linalg.eigh((q - centre).T @ (q - centre))
-        normal, direction = vecs[:, 0], vecs[:, 1]
+        centre, normal, direction = principal_axes(q)
         inl = np.abs((p - centre) @ normal) < tolerance
         proj = (p[inl] - centre) @ direction
         found = False

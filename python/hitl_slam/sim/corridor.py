@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from hitl_slam.geometry import principal_axes
 from hitl_slam.map import Map
 
 __all__ = ["WALLS", "World", "corridor_loop", "drawn_segment"]
@@ -146,9 +147,7 @@ def drawn_segment(
     pts = m.world_points(poses)[sel]
     if len(pts) < 10:
         raise ValueError(f"wall {wall} is barely seen by poses {pose_range}")
-    centre = pts.mean(axis=0)
-    _, vecs = np.linalg.eigh((pts - centre).T @ (pts - centre))
-    direction = vecs[:, 1]
+    centre, _, direction = principal_axes(pts)
     proj = (pts - centre) @ direction
     lo, hi = np.quantile(proj, along)
     ends = [centre + lo * direction, centre + hi * direction]

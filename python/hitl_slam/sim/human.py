@@ -16,8 +16,8 @@ from numpy.typing import NDArray
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected, InputError
+from hitl_slam.geometry import to_world
 from hitl_slam.interpret import interpret
-from hitl_slam.map import to_world
 from hitl_slam.session import Session
 from hitl_slam.sim.scenario import Scenario, WallFit, angle_between, fit_points, spacing_between
 

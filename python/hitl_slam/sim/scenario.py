@@ -13,7 +13,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.errors import InputError
-from hitl_slam.map import Map, to_world
+from hitl_slam.geometry import principal_axes, to_world
+from hitl_slam.map import Map
 from hitl_slam.sim import worlds
 from hitl_slam.sim.lidar import Lidar
 from hitl_slam.sim.odometry import (
@@ -73,11 +74,8 @@ class WallFit:
 
 def fit_points(points: FloatArray) -> WallFit:
     """The TLS line through ``points`` (K >= 2, 2)."""
-    centre = points.mean(axis=0)
-    d = points - centre
-    _, vecs = np.linalg.eigh(d.T @ d)
-    normal, direction = vecs[:, 0], vecs[:, 1]
-    proj = d @ direction
+    centre, normal, direction = principal_axes(points)
+    proj = (points - centre) @ direction
     return WallFit(
         phi=float(math.atan2(normal[1], normal[0])),
         rho=float(normal @ centre),

@@ -27,8 +27,7 @@ from numpy.typing import NDArray
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.corrections_file import Apply, Step, Undo
 from hitl_slam.errors import CorrectionRejected, HitlSlamError, InputError, SolverError
-from hitl_slam.map import to_world
-from hitl_slam.pipeline import fit_line
+from hitl_slam.geometry import fit_line, to_world
 from hitl_slam.session import HistoryEntry, Session
 
 __all__ = [
