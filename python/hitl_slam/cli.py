@@ -243,7 +243,7 @@ def _cmd_generate(args: argparse.Namespace) -> int:
 
     from hitl_slam.io import save_graph
     from hitl_slam.io.atomic import atomic_write_text
-    from hitl_slam.synthetic import manhattan_world
+    from hitl_slam.sim.synthetic import manhattan_world
 
     out = Path(args.output)
     graph, truth = manhattan_world(args.poses, seed=args.seed)
