@@ -5,7 +5,10 @@ change, so every solve starts from what the robot actually measured (ALGORITHM.m
 
 from __future__ import annotations
 
+import base64
 import enum
+import html
+import io
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -13,10 +16,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.errors import InputError
+from hitl_slam.errors import InputError, MissingExtra
 from hitl_slam.graph import PoseGraph
 
 __all__ = ["InformationSource", "Map", "motion_model_information", "to_world"]
+
+_REPR_MAX_POINTS = 20_000
+"""At most this many observations are drawn in a notebook's picture of a map (a random subset,
+the same every time), so showing a 1.7 M point map stays well under a second."""
+_REPR_SIZE = (6.4, 4.8)  # inches, at _REPR_DPI: a 640 x 480 PNG
+_REPR_DPI = 100.0
 
 
 class InformationSource(enum.IntEnum):
@@ -149,6 +158,49 @@ class Map:
     @property
     def num_points(self) -> int:
         return int(self.points.shape[0])
+
+    def summary(self) -> str:
+        """One line: the name, how many poses and points, and the extent of the poses and points
+        in the world frame under the current poses, e.g. ``room: 120 poses, 21,600 points,
+        extent 6.5 m x 4.2 m``."""
+        world = self.world_points()
+        xy = np.concatenate([self.poses[:, :2], world]) if len(world) else self.poses[:, :2]
+        width, height = (xy.max(axis=0) - xy.min(axis=0)).tolist()
+        return (
+            f"{self.name}: {self.num_poses:,} poses, {self.num_points:,} points, "
+            f"extent {width:.1f} m x {height:.1f} m"
+        )
+
+    def _repr_png_(self) -> bytes | None:
+        """The map under its current poses as a PNG (observations, at most 20,000 of them, and
+        pose arrows; :func:`hitl_slam.plot.plot_map`), shown by Jupyter/IPython. ``None`` (IPython's
+        "no picture") when matplotlib, the ``[plot]`` extra, is not installed."""
+        try:
+            from hitl_slam.plot import plot_map
+        except MissingExtra:
+            return None
+        figure = plot_map(
+            self, self.poses, max_points=_REPR_MAX_POINTS, size=_REPR_SIZE, dpi=_REPR_DPI
+        )
+        buffer = io.BytesIO()
+        figure.savefig(buffer, format="png", dpi=_REPR_DPI)
+        return buffer.getvalue()
+
+    def _repr_html_(self) -> str:
+        """The picture of :meth:`_repr_png_` embedded in HTML above the :meth:`summary` line; only
+        the summary (and how to get the picture) when matplotlib is not installed."""
+        summary = html.escape(self.summary())
+        png = self._repr_png_()
+        if png is None:
+            return (
+                f"<div><code>{summary}</code><br><small>pip install 'hitl-slam[plot]' to see the "
+                "map</small></div>"
+            )
+        data = base64.b64encode(png).decode("ascii")
+        return (
+            f'<div><img src="data:image/png;base64,{data}" alt="{summary}"><br>'
+            f"<code>{summary}</code></div>"
+        )
 
     def pose_of_point(self) -> NDArray[np.int64]:
         """``(P,)`` the pose index of every point."""
