@@ -329,3 +329,14 @@ def test_without_matplotlib_a_map_shows_its_summary(world: World) -> None:
     assert "<img" not in page
     assert m.summary() in page
     assert "hitl-slam[plot]" in page
+
+
+def test_a_map_without_points_still_shows_itself() -> None:
+    m = hitl_slam.Map.from_poses_and_scans(
+        np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 0.0]]), [np.zeros((0, 2))] * 2, name="bare"
+    )
+    assert m.summary() == "bare: 2 poses, 0 points, extent 1.0 m x 2.0 m"
+    png = m._repr_png_()
+    assert png is not None
+    assert _png_size(png) == (640, 480)
+    assert "bare: 2 poses" in m._repr_html_()
