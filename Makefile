@@ -23,13 +23,13 @@ setup: $(BIN)/python
 	@echo "setup: installing the Python dependencies and test tools into $(VENV)"
 	@$(BIN)/python -c 'import tomllib; p = tomllib.load(open("pyproject.toml", "rb"))["project"]; print("\n".join(p["dependencies"] + p["optional-dependencies"]["test"]))' > $(VENV)/requirements-test.txt
 	$(BIN)/python -m pip install --quiet --requirement $(VENV)/requirements-test.txt
-	@echo "setup: building the Rust core (release) and installing hitl-slam: about 3 minutes on 2 cores"
-	@echo "setup: the first time, the last 1-2 of them (optimizing and linking hitl-slam) without output;"
-	@echo "setup: seconds once built"
+	@echo "setup: building the Rust core (release) and installing hitl-slam: about 4 minutes on 2 cores"
+	@echo "setup: the first time, seconds afterwards. Each crate is listed as its compilation starts;"
+	@echo "setup: the last two (faer, then hitl-slam) take about 2 minutes between them without output"
 	@start=$$(date +%s); \
 	{ $(BIN)/python -m pip install --no-deps --editable . --verbose; echo $$? > $(BUILD_LOG).status; } 2>&1 \
 		| tee $(BUILD_LOG) \
-		| grep --line-buffered -E '^ *(Compiling|Finished) |Built wheel|^(error|warning)|Successfully installed'; \
+		| grep --line-buffered -E '^ *(Compiling|Finished) |Built wheel|^(error|warning)|Successfully installed hitl-slam'; \
 	status=$$(cat $(BUILD_LOG).status); \
 	if [ "$$status" != 0 ]; then \
 		tail -n 40 $(BUILD_LOG); \
