@@ -9,12 +9,34 @@ DEMO := build/demo
 .PHONY: setup browser demo test lint test-rust test-python bench clean
 
 $(BIN)/python:
+	@echo "setup: creating the virtualenv $(VENV)"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-# Builds the Rust extension (release) and installs the package with its test tools.
+# Installs the package with its test tools (the [test] extra, which includes [web] and [plot])
+# in two steps, so that the slow one is not silent: first the dependencies, read from
+# pyproject.toml (quietly), then the package itself, whose build (maturin running cargo, release)
+# shows each crate it compiles; the build's whole output goes to $(BUILD_LOG).
+BUILD_LOG := $(VENV)/build.log
+
 setup: $(BIN)/python
-	$(BIN)/python -m pip install --quiet --editable ".[test]"
+	@echo "setup: installing the Python dependencies and test tools into $(VENV)"
+	@$(BIN)/python -c 'import tomllib; p = tomllib.load(open("pyproject.toml", "rb"))["project"]; print("\n".join(p["dependencies"] + p["optional-dependencies"]["test"]))' > $(VENV)/requirements-test.txt
+	$(BIN)/python -m pip install --quiet --requirement $(VENV)/requirements-test.txt
+	@echo "setup: building the Rust core (release) and installing hitl-slam: about 4 minutes on 2 cores"
+	@echo "setup: the first time, seconds afterwards. Each crate is listed as its compilation starts;"
+	@echo "setup: the last two (faer, then hitl-slam) take about 2 minutes between them without output"
+	@start=$$(date +%s); \
+	{ $(BIN)/python -m pip install --no-deps --editable . --verbose; echo $$? > $(BUILD_LOG).status; } 2>&1 \
+		| tee $(BUILD_LOG) \
+		| grep --line-buffered -E '^ *(Compiling|Finished) |Built wheel|^(error|warning)|Successfully installed hitl-slam'; \
+	status=$$(cat $(BUILD_LOG).status); \
+	if [ "$$status" != 0 ]; then \
+		tail -n 40 $(BUILD_LOG); \
+		echo "setup: the build failed (pip exit status $$status); its whole output is in $(BUILD_LOG)"; \
+		exit 1; \
+	fi; \
+	echo "setup: hitl-slam built and installed in $$(( $$(date +%s) - start )) s"
 
 # Debian's chromium for the web UI's browser tests (apt-get; skipped when already there).
 browser:

@@ -723,7 +723,7 @@ def parse_arguments(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 
 def _synthetic(num_poses: int, seed: int) -> PoseGraph:
-    from hitl_slam.synthetic import manhattan_world
+    from hitl_slam.sim.synthetic import manhattan_world
 
     return manhattan_world(num_poses, seed=seed)[0]
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Scale test: one hitl-slam solve of a generated 100 000-pose graph with 10 000 loop closures.
 
-Generates ``chain_with_loops`` (a Manhattan walk; see hitl_slam.synthetic), solves it from its
+Generates ``chain_with_loops`` (a Manhattan walk; see hitl_slam.sim.synthetic), solves it from its
 odometry guess, and reports time, iterations, chi2, the trajectory error against the ground truth
 and the peak memory. Meant to run as
 
@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import hitl_slam
-from hitl_slam.synthetic import chain_with_loops
+from hitl_slam.sim.synthetic import chain_with_loops
 
 _THREAD_VARIABLES = ("RAYON_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 

@@ -13,10 +13,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-pytest.importorskip("hitl_slam.pipeline")
-pytest.importorskip("hitl_slam.interpret")
-pytest.importorskip("hitl_slam.io.export")
-
 from hitl_slam.cli import main
 from hitl_slam.io.export import export
 from hitl_slam.io.maps import load_map

@@ -20,7 +20,7 @@ from scipy.optimize import least_squares
 
 import hitl_slam
 from hitl_slam import InputError, PoseGraph, SolverError
-from hitl_slam.synthetic import chain_with_loops, manhattan_world
+from hitl_slam.sim.synthetic import chain_with_loops, manhattan_world
 from reference import compose, exp, reference_chi2, whitened, wrap
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"

@@ -12,8 +12,8 @@ from numpy.typing import NDArray
 
 import hitl_slam
 from hitl_slam import InputError, PoseGraph
+from hitl_slam.sim.synthetic import manhattan_world
 from hitl_slam.solve import downweighted, optimize, robust_pairs
-from hitl_slam.synthetic import manhattan_world
 from reference import compose, wrap
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"

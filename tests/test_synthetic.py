@@ -19,7 +19,7 @@ from scipy.sparse.csgraph import connected_components
 
 from hitl_slam.errors import InputError
 from hitl_slam.graph import PoseGraph
-from hitl_slam.synthetic import chain_with_loops, manhattan_world
+from hitl_slam.sim.synthetic import chain_with_loops, manhattan_world
 from reference import reference_chi2
 from reference import wrap as _wrap
 

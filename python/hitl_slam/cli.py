@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, TypeVar
 
 from hitl_slam import __version__
 from hitl_slam.errors import HitlSlamError, InputError, SolverError
+from hitl_slam.extras import require
 
 if TYPE_CHECKING:
     from hitl_slam.map import Map
@@ -243,7 +244,7 @@ def _cmd_generate(args: argparse.Namespace) -> int:
 
     from hitl_slam.io import save_graph
     from hitl_slam.io.atomic import atomic_write_text
-    from hitl_slam.synthetic import manhattan_world
+    from hitl_slam.sim.synthetic import manhattan_world
 
     out = Path(args.output)
     graph, truth = manhattan_world(args.poses, seed=args.seed)
@@ -399,6 +400,8 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
     heat_path = None if args.heat_map is None else Path(args.heat_map)
     if heat_path is not None and heat_path.suffix.lower() != ".png":
         raise InputError(f"{heat_path}: the heat map is written as PNG; give a .png file name")
+    if heat_path is not None:
+        require("plot", "hitl-slam metrics --heat-map")
     config = DEFAULT
     if args.resolution is not None:
         if not (math.isfinite(args.resolution) and args.resolution > 0):
@@ -489,6 +492,7 @@ inconsistency heat maps before and after, the corrected map (.g2o), the correcti
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    require("plot", "hitl-slam demo")
     from hitl_slam.demo import run_demo
 
     out = Path(args.output)
@@ -536,6 +540,7 @@ loopback only.
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
+    require("web", "hitl-slam serve")
     from hitl_slam.web.server import run_server
 
     if args.demo_world is not None and not args.demo:
@@ -588,6 +593,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         return _evaluate_full(args, out)
     if args.maps or args.faults:
         raise InputError("--maps and --faults select parts of the full evaluation; add --full")
+    require("plot", "hitl-slam evaluate")  # the report's figures
     log = (lambda _m: None) if args.quiet else print
     results, report = run_evaluation(out, seed=args.seed, quick=args.quick, log=log)
     print(table(results))

@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from hitl_slam.errors import InputError
 
-__all__ = ["DrawnCorrection", "Interpretation", "Mode", "Segment"]
+__all__ = ["Correction", "DrawnCorrection", "Interpretation", "Mode", "Segment"]
 
 Segment = tuple[tuple[float, float], tuple[float, float]]
 
@@ -83,6 +83,11 @@ class DrawnCorrection:
         if self.sigma_h is not None:
             out["sigma_h"] = self.sigma_h
         return out
+
+
+Correction = DrawnCorrection
+"""The public name of a drawn correction (``hitl_slam.Correction``): the same class, so
+``Correction.make(a, b, "collinear")`` and ``DrawnCorrection.make(...)`` are interchangeable."""
 
 
 @dataclass(frozen=True)

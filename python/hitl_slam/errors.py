@@ -6,7 +6,7 @@ one family whatever layer the problem was found in.
 
 from __future__ import annotations
 
-__all__ = ["CorrectionRejected", "HitlSlamError", "InputError", "SolverError"]
+__all__ = ["CorrectionRejected", "HitlSlamError", "InputError", "MissingExtra", "SolverError"]
 
 
 class HitlSlamError(Exception):
@@ -18,6 +18,12 @@ class InputError(HitlSlamError, ValueError):
 
     The message names the file and line where there is one, says what is wrong and what to do.
     """
+
+
+class MissingExtra(InputError, ImportError):
+    """An optional dependency is not installed: the message names the extra to install, e.g.
+    ``hitl-slam serve needs the web extra: pip install 'hitl-slam[web]'`` (see
+    :mod:`hitl_slam.extras`). The CLI reports it as bad input: one line, exit status 2."""
 
 
 class SolverError(HitlSlamError, RuntimeError):

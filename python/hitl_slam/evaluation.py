@@ -102,7 +102,7 @@ def real_log_scenario(
     from hitl_slam.sim import FeaturePair, Floorplan, Lidar, Scenario
     from hitl_slam.sim.odometry import DEFAULT_NOISE, odometry
     from hitl_slam.sim.scenario import angle_between, fit_points, spacing_between
-    from hitl_slam.walls import extract_walls
+    from hitl_slam.sim.walls import extract_walls
 
     log = read_carmen(path, min_travel=min_travel, min_rotation=min_rotation)
     truth = log.poses.copy()

@@ -1,6 +1,7 @@
 """Figures in the paper's visual language: maps with observations and poses (Figs. 1, 6, 8), the
 information matrix with the human corrections' off-diagonal blocks (Fig. 5) and inconsistency heat
-maps. The only module that imports matplotlib: import it lazily, never from the package root.
+maps. The only module that imports matplotlib (the ``[plot]`` extra): import it lazily, never from
+the package root; without matplotlib importing it raises :class:`~hitl_slam.errors.MissingExtra`.
 """
 
 from __future__ import annotations
@@ -14,12 +15,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.colors import LogNorm, Normalize, to_rgb
-from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
-from matplotlib.patches import Patch
 from numpy.typing import ArrayLike, NDArray
 
 # scipy ships no type information; "unused-ignore" keeps this clean once scipy-stubs is added.
@@ -27,9 +22,20 @@ from scipy.sparse import csr_array  # type: ignore[import-untyped, unused-ignore
 
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import InputError
+from hitl_slam.extras import missing_extra
 from hitl_slam.geometry import principal_axes
 from hitl_slam.io.atomic import fsync_directory
 from hitl_slam.map import Map
+
+try:
+    from matplotlib.axes import Axes
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.colors import LogNorm, Normalize, to_rgb
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+except ImportError as exc:  # one line naming the extra, not a traceback from matplotlib's import
+    raise missing_extra("plot", "hitl_slam.plot") from exc
 
 __all__ = [
     "MODE_COLOURS",

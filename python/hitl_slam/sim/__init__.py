@@ -2,6 +2,9 @@
 
 Walls (:mod:`~hitl_slam.sim.worlds`), a lidar (:mod:`~hitl_slam.sim.lidar`), trajectories and
 damaged odometry, packaged as a :class:`Scenario`; a :class:`SimulatedHuman` that repairs it.
+Also generated pose graphs without observations (:mod:`~hitl_slam.sim.synthetic`, for the solver's
+tests and benches) and straight walls found in a real log's point cloud
+(:mod:`~hitl_slam.sim.walls`, standing in for a floor plan when simulating a person on real data).
 """
 
 from __future__ import annotations
