@@ -33,7 +33,11 @@ from hitl_slam import pipeline
 from hitl_slam.config import DEFAULT
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected
-from hitl_slam.geometry import principal_axes, wrap
+
+try:
+    from hitl_slam.geometry import principal_axes, wrap
+except ImportError:  # an older build timed with --baseline: it only replays saved states
+    from hitl_slam.map import wrap  # type: ignore[attr-defined,no-redef]
 from hitl_slam.map import Map
 from hitl_slam.pipeline import apply_correction
 from hitl_slam.sim.corridor import (
@@ -352,7 +356,7 @@ def _run(pythonpath: str, extra: list[str], log: Callable[[str], None]) -> list[
         env=env,
         check=True,
         stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
+        stderr=None if os.environ.get("LATENCY_VERBOSE") else subprocess.DEVNULL,
         text=True,
     ).stdout
     rows: list[dict[str, object]] = json.loads(out.strip().splitlines()[-1])
