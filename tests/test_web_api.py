@@ -125,8 +125,10 @@ def test_state_document(client: TestClient, room: Scenario) -> None:
         "last",
         "inconsistency_m2",
         "history",
+        "lines",
         "journal",
     }
+    assert state["lines"] == []
     assert state["session"] == "room.hitl"
     assert state["name"] == room.map.name
     assert (state["num_poses"], state["num_points"]) == (499, room.map.num_points)
@@ -155,6 +157,10 @@ def test_binary_arrays_are_the_map_in_float32(client: TestClient, room: Scenario
     assert np.array_equal(f32(points.content, 2), m.world_points().astype(np.float32))
     assert np.array_equal(f32(poses.content, 3), m.poses.astype(np.float32))
     assert np.array_equal(np.frombuffer(offsets.content, dtype="<i4"), m.offsets)
+    # The page's own array: each scan's points once, in the robot frame.
+    scans = client.get("/api/map/scans")
+    assert scans.headers["content-type"] == "application/octet-stream"
+    assert np.array_equal(f32(scans.content, 2), m.points.astype(np.float32))
 
 
 # -- interpret, apply, reject -------------------------------------------------------------------
