@@ -1,7 +1,7 @@
-"""SessionHost: the one editing :class:`~hitl_slam.session.Session` every browser tab shares: changes
-run one at a time, each publishes a :class:`Snapshot` under a version counter that long-polling
-clients wait on. What it hands out comes from the modules named after each concept: the arrays
-and lines the page draws (:mod:`~hitl_slam.web.drawing`), relation residuals
+"""SessionHost: the one editing :class:`~hitl_slam.session.Session` every browser tab shares:
+changes run one at a time, each publishes a :class:`Snapshot` under a version counter that
+long-polling clients wait on. What it hands out comes from the modules named after each concept:
+the arrays and lines the page draws (:mod:`~hitl_slam.web.drawing`), relation residuals
 (:mod:`~hitl_slam.web.relations`), the inconsistency off the request path
 (:mod:`~hitl_slam.web.metric`), paths kept inside the session's folder
 (:mod:`~hitl_slam.web.folder`) and the JSON documents (:mod:`~hitl_slam.web.documents`). No HTTP
