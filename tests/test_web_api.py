@@ -755,7 +755,7 @@ def test_other_requests_are_answered_while_a_correction_computes(
         h.close()
 
 
-# -- what the page draws: solved lines and robot-frame scans ----------------------------------------
+# -- what the page draws: solved lines and robot-frame scans -------------------------------------
 
 
 def test_state_serves_the_solved_lines(

@@ -406,7 +406,8 @@ def test_a_reload_shows_every_segment_where_the_live_page_did(
     page = open_page(browser, demo.url)
     assert page.evaluate("window.hitl.hintVisible()")
     hint = page.locator("#hint").inner_text()
-    assert "press p" in hint and "Ctrl" in hint, hint
+    assert "press p" in hint, hint
+    assert "Ctrl" in hint, hint
 
     drawn = DrawnCorrection.make(
         first_correction.a, first_correction.b, "colocation", first_correction.sigma_h
@@ -475,7 +476,8 @@ def test_both_point_paths_place_the_scans_by_the_poses(
         k: (s[:, :, 0].astype(int) - s[:, :, 2].astype(int) > 60) & (s[:, :, 1] > 100)
         for k, s in shots.items()
     }
-    assert orange["gpu"].sum() > 1000 and orange["cpu"].sum() > 1000
+    assert orange["gpu"].sum() > 1000
+    assert orange["cpu"].sum() > 1000
     overlap = (orange["gpu"] & orange["cpu"]).sum() / max(orange["cpu"].sum(), 1)
     assert overlap > 0.8, overlap
     for p in pages.values():
