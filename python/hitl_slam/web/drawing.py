@@ -23,6 +23,7 @@ from hitl_slam.map import Map, to_world
 __all__ = ["MapDrawing", "line_segment"]
 
 Bounds = tuple[float, float, float, float]
+_CHUNK = 16  # scans placed at a time while looking for the map's extremes
 
 
 def line_segment(phi: float, rho: float, points: NDArray[np.float64]) -> list[list[float]]:
@@ -72,26 +73,36 @@ class MapDrawing:
 
     def bounds(self, poses: NDArray[np.float64]) -> Bounds:
         """(x min, y min, x max, y max) of every pose and world point under ``poses``, exactly,
-        without placing every point: a scan can hold an extreme only if its pose's distance to
-        the extreme found so far is within the scan's reach, and few scans are."""
+        without placing every point: a scan can hold an extreme only if its pose, less the
+        scan's reach, passes the extreme found so far; scans are placed in that order, a chunk
+        at a time, until none can."""
         out = []
+        scans = np.flatnonzero(self._has_points)
+        first = to_world(poses, scans, self._map.points[self._first[scans]])
         for axis, sign in ((0, 1.0), (1, 1.0), (0, -1.0), (1, -1.0)):  # min x, min y, max x, max y
-            values = sign * poses[:, axis]
-            best = float(values.min())
-            if self._map.num_points:
-                # An actual point of each scan with points: the extreme is at most the best one.
-                scans = np.flatnonzero(self._has_points)
-                first = to_world(poses, scans, self._map.points[self._first[scans]])
+            best = float((sign * poses[:, axis]).min())
+            if scans.size:
+                # An actual point of each scan: the extreme is at most the least of them.
                 best = min(best, float((sign * first[:, axis]).min()))
-                near = scans[values[scans] - self._reach[scans] <= best]
-                if near.size:
-                    rows = np.concatenate(
-                        [np.arange(self._map.offsets[i], self._map.offsets[i + 1]) for i in near]
-                    )
+                lower = sign * poses[scans, axis] - self._reach[scans]
+                order = scans[np.argsort(lower, kind="stable")]
+                lower = np.sort(lower, kind="stable")
+                for start in range(0, order.size, _CHUNK):
+                    if lower[start] > best:
+                        break
+                    chunk = order[start : start + _CHUNK][lower[start : start + _CHUNK] <= best]
+                    rows = self._rows(chunk)
                     world = to_world(poses, self._owner[rows], self._map.points[rows])
                     best = min(best, float((sign * world[:, axis]).min()))
             out.append(sign * best)
         return (out[0], out[1], out[2], out[3])
+
+    def _rows(self, scans: NDArray[np.int64]) -> NDArray[np.int64]:
+        """The point rows of ``scans``, in order."""
+        starts = self._map.offsets[scans]
+        counts = self._map.offsets[scans + 1] - starts
+        shift = np.repeat(starts - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
+        return np.arange(int(counts.sum()), dtype=np.int64) + shift
 
     def line_segments(
         self,

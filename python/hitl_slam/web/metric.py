@@ -8,6 +8,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import threading
+import time
 from collections import OrderedDict
 from collections.abc import Callable
 
@@ -23,6 +24,10 @@ __all__ = ["MetricWorker"]
 logger = logging.getLogger(__name__)
 
 _CACHE = 64  # inconsistency values remembered by pose hash
+DELAY_S = 0.3
+"""[s] How long a new map waits before its inconsistency is computed: the page's own requests
+right after a change (the new poses, the long poll) are served first, without a computation
+competing for the cores."""
 
 
 def _pose_key(poses: NDArray[np.float64]) -> bytes:
@@ -34,8 +39,14 @@ class MetricWorker:
     ``done(map_version, poses, total_m2)``."""
 
     def __init__(
-        self, map: Map, config: Config, done: Callable[[int, NDArray[np.float64], float], None]
+        self,
+        map: Map,
+        config: Config,
+        done: Callable[[int, NDArray[np.float64], float], None],
+        delay: float = DELAY_S,
     ) -> None:
+        self._delay = delay
+        self._requested = 0.0  # time.monotonic() of the newest request
         self._map = map
         self._config = config
         self._done = done
@@ -56,6 +67,7 @@ class MetricWorker:
         matters)."""
         with self._wake:
             self._job = (map_version, poses)
+            self._requested = time.monotonic()
             self._wake.notify_all()
 
     def close(self) -> None:
@@ -71,6 +83,13 @@ class MetricWorker:
         while True:
             with self._wake:
                 self._wake.wait_for(lambda: self._job is not None or self._closing)
+                # Let the page's requests that follow a change go first (a newer request
+                # restarts the wait).
+                while not self._closing:
+                    left = self._requested + self._delay - time.monotonic()
+                    if left <= 0:
+                        break
+                    self._wake.wait(left)
                 if self._closing:
                     return
                 job = self._job
