@@ -316,7 +316,7 @@ def _cmd_correct(args: argparse.Namespace) -> int:
             before = session.poses
             name = step.drawn.mode.value if isinstance(step, Apply) else type(step).__name__.lower()
             try:
-                done = _with_progress(
+                result = _with_progress(
                     f"line {step.line}: {name}", args.quiet, partial(session.run_step, step)
                 )
             except CorrectionRejected as exc:
@@ -325,8 +325,8 @@ def _cmd_correct(args: argparse.Namespace) -> int:
             except StepRefused as exc:
                 reject(step.line, name, str(exc))
                 continue
-            counts["applied" if done.action == "apply" else done.action] += 1
-            stats = done.entry.stats if done.action == "apply" else None
+            counts["applied" if result.action == "apply" else result.action] += 1
+            stats = result.entry.stats if result.action == "apply" else None
             chi2 = (
                 f"{'-':>16} {'-':>16}"
                 if stats is None
@@ -334,7 +334,7 @@ def _cmd_correct(args: argparse.Namespace) -> int:
             )
             moved, _ = moved_poses(before, session.poses)
             if not args.quiet:
-                print(f"{step.line:>5}  {name:<14} {moved:>7} {chi2} {1e3 * done.time_s:>9.2f}")
+                print(f"{step.line:>5}  {name:<14} {moved:>7} {chi2} {1e3 * result.time_s:>9.2f}")
         _with_progress("writing", args.quiet, lambda: session.save(out))
         if session_path is not None:
             session.write_journal(session_path)

@@ -102,7 +102,8 @@ class MapDrawing:
         starts = self._map.offsets[scans]
         counts = self._map.offsets[scans + 1] - starts
         shift = np.repeat(starts - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
-        return np.arange(int(counts.sum()), dtype=np.int64) + shift
+        rows: NDArray[np.int64] = np.arange(int(counts.sum()), dtype=np.int64) + shift
+        return rows
 
     def line_segments(
         self,
