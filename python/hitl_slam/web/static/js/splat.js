@@ -2,9 +2,9 @@
 // the robot frame, so a new map only brings new poses), adds one to the count of the pixel it
 // falls on (a one-byte-per-pixel image, saturating at 255), the counts go to the GPU as a
 // texture, and a shader turns counts into orange of the same opacity as blended GL points. On a
-// software WebGL (SwiftShader, llvmpipe: machines without a GPU, remote desktops, headless CI) this is
-// some 20 times faster than GL_POINTS, whose per-vertex cost there is about 0.6 us; with a GPU
-// the view draws GL_POINTS instead (view.js picks).
+// software WebGL (SwiftShader, llvmpipe: machines without a GPU, remote desktops, headless CI)
+// this is some 20 times faster than GL_POINTS, whose per-vertex cost there is about 0.6 us; with
+// a GPU the view draws GL_POINTS instead (view.js picks).
 
 import { SPLAT_FS, SPLAT_VS, compile } from "./shaders.js";
 
