@@ -7,13 +7,18 @@ takes while panning and zooming a map of more than 500,000 laser points (target:
 
     python benches/web_latency.py                          # prints the tables
     python benches/web_latency.py --write benches/README.md
+    python benches/web_latency.py --only apply --baseline /tmp/base/python   # side by side
 
 (1) The simulated human (hitl_slam.sim) draws its first correction on the campus; the script
 draws it in the page with real Shift-drags, waits for the preview, presses p and reads the
 page's own measurement (window.hitl.lastRedraw: from sending the request to the end of the first
 frame with the new map, GPU finished), then presses u to undo, so every repeat starts from the
-same map. (2) The campus toured in finer steps (549,552 points) and Freiburg 079 (1.7 M points,
-from ../shared/datasets/laser/) are panned with a mouse drag and zoomed with the wheel; frame
+same map. The bytes the page receives for one correction are summed from the page's resource
+timings: every response from pressing p to that first frame, and the long poll that reported it.
+With --baseline DIR, a second server runs the hitl-slam found in DIR (another checkout, its
+PYTHONPATH) with its own front end, and the first correction is timed on both in turns.
+(2) The campus toured in finer steps (549,552 points) and Freiburg 079 (1.7 M points, from
+../shared/datasets/laser/) are panned with a mouse drag and zoomed with the wheel; frame
 time is measured by the page from the start of the draw to a 1-pixel readPixels (which waits for
 the GPU), and the interval between animation frames while an in-page driver pans or zooms every
 frame.
@@ -55,6 +60,7 @@ class ApplyRun:
     upload_ms: list[float]
     draw_ms: list[float]
     megabytes: float
+    kilobytes_received: float  # everything the page received per correction (median)
     poses: int
     points: int
 
@@ -106,9 +112,25 @@ def look_at(page: Any, segment: Sequence[Sequence[float]], sigma_h: float | None
     page.evaluate("([x, y, s]) => window.hitl.lookAt(x, y, s)", [centre[0], centre[1], scale])
 
 
+# The bytes received for one correction: every response that ended after p was pressed and
+# started before the first frame with the new map (the apply request's start plus totalMs).
+_RECEIVED = """
+([pressed, totalMs]) => {
+  const entries = performance.getEntriesByType("resource");
+  const apply = entries.find((e) => e.name.includes("api/corrections") && e.startTime >= pressed);
+  if (!apply) return null;
+  const frame = apply.startTime + totalMs;
+  return entries
+    .filter((e) => e.responseEnd >= pressed && e.startTime <= frame)
+    .reduce((sum, e) => sum + e.encodedBodySize, 0);
+}
+"""
+
+
 def draw_and_apply(page: Any, drawn: Any) -> dict[str, Any] | None:
     """Draws ``drawn`` in the page as a person would (centring on each segment in turn), waits
-    for the preview and presses p; the page's lastRedraw, or None if the preview was rejected."""
+    for the preview and presses p; the page's lastRedraw (with ``received``: the bytes the page
+    received for it), or None if the preview was rejected."""
     page.keyboard.press("p")
     for segment in (drawn.a, drawn.b):
         look_at(page, segment, drawn.sigma_h)
@@ -119,12 +141,20 @@ def draw_and_apply(page: Any, drawn: Any) -> dict[str, Any] | None:
         page.keyboard.press("p")
         return None
     version = int(page.evaluate("window.hitl.version"))
+    pressed = float(
+        page.evaluate(
+            "performance.clearResourceTimings(); performance.setResourceTimingBufferSize(2000);"
+            " performance.now()"
+        )
+    )
     page.keyboard.press("p")
     page.wait_for_function(
         f"window.hitl.lastRedraw !== null && window.hitl.lastRedraw.version > {version}",
         timeout=60_000,
     )
     redraw: dict[str, Any] = page.evaluate("window.hitl.lastRedraw")
+    page.wait_for_timeout(300)  # the long poll's answer, if it is still on its way
+    redraw["received"] = page.evaluate(_RECEIVED, [pressed, float(redraw["totalMs"])])
     return redraw
 
 
@@ -147,51 +177,65 @@ def apply_run(runs: Sequence[dict[str, Any]], label: str, state: dict[str, Any])
         upload_ms=column("uploadMs"),
         draw_ms=column("drawMs"),
         megabytes=median(column("bytes")) / 1e6,
+        kilobytes_received=median(column("received")) / 1e3,
         poses=int(state["num_poses"]),
         points=int(state["num_points"]),
     )
 
 
-def measure_apply(browser: Any, repeats: int) -> list[ApplyRun]:
-    """The human's first correction on the campus ``repeats`` times (undone after each, after
-    one warm-up), then its next ``repeats`` corrections in a row."""
+def measure_apply(
+    browser: Any, repeats: int, trees: Sequence[tuple[str, str | None]]
+) -> list[ApplyRun]:
+    """For each (name, PYTHONPATH or None for this tree): a server on the campus. The human's
+    first correction is timed ``repeats`` times on each server in turns (undone after each,
+    after one warm-up each), then its next ``repeats`` corrections in a row on each."""
     from hitl_slam.sim import SimulatedHuman, campus
 
-    with (
-        tempfile.TemporaryDirectory() as folder,
-        web_support.serve(Path(folder), "--demo", "--demo-world", "campus") as server,
-    ):
-        page = web_support.open_page(browser, server.url)
-        state = server.state()
+    with contextlib.ExitStack() as stack:
+        servers = []
+        for name, path in trees:
+            folder = Path(stack.enter_context(tempfile.TemporaryDirectory()))
+            server = stack.enter_context(
+                web_support.serve(folder, "--demo", "--demo-world", "campus", pythonpath=path)
+            )
+            servers.append((name, server, web_support.open_page(browser, server.url)))
+        state = servers[0][1].state()
         human = SimulatedHuman(campus(0), 0)
-        first = human.next_correction(server.poses().astype(np.float64))
+        first = human.next_correction(servers[0][1].poses().astype(np.float64))
         assert first is not None, "the simulated human sees nothing to correct on the campus"
-        same: list[dict[str, Any]] = []
+        same: dict[str, list[dict[str, Any]]] = {name: [] for name, _, _ in servers}
         for k in range(repeats + 1):
-            redraw = draw_and_apply(page, first)
-            assert redraw is not None, "the first correction was rejected"
-            if k > 0:
-                same.append(redraw)
-            undo(page)
-        page.wait_for_function("window.hitl.state.applied === 0")
-
-        successive: list[dict[str, Any]] = []
-        for _ in range(4 * repeats):  # a rejected drawing is not counted; the human tries another
-            if len(successive) == repeats:
-                break
-            drawn = human.next_correction(server.poses().astype(np.float64))
-            if drawn is None:
-                break
-            redraw = draw_and_apply(page, drawn)
-            if redraw is None:
-                human.rejected(drawn)
-            else:
-                successive.append(redraw)
-        page.context.close()
-    return [
-        apply_run(same, "first correction, undone after each", state),
-        apply_run(successive, f"corrections 1 to {len(successive)} in a row", state),
-    ]
+            for name, _, page in servers:
+                redraw = draw_and_apply(page, first)
+                assert redraw is not None, f"{name}: the first correction was rejected"
+                if k > 0:
+                    same[name].append(redraw)
+                undo(page)
+        runs = []
+        for name, server, page in servers:
+            page.wait_for_function("window.hitl.state.applied === 0")
+            human = SimulatedHuman(campus(0), 0)
+            successive: list[dict[str, Any]] = []
+            for _ in range(4 * repeats):  # a rejected drawing is not counted; the human tries again
+                if len(successive) == repeats:
+                    break
+                drawn = human.next_correction(server.poses().astype(np.float64))
+                if drawn is None:
+                    break
+                redraw = draw_and_apply(page, drawn)
+                if redraw is None:
+                    human.rejected(drawn)
+                else:
+                    successive.append(redraw)
+            page.context.close()
+            prefix = f"{name}: " if len(servers) > 1 else ""
+            runs += [
+                apply_run(same[name], f"{prefix}first correction, undone after each", state),
+                apply_run(
+                    successive, f"{prefix}corrections 1 to {len(successive)} in a row", state
+                ),
+            ]
+    return runs
 
 
 # An in-page driver: every animation frame, a wheel event at the canvas centre (zooming in, then
@@ -304,8 +348,9 @@ def tables(apply: Sequence[ApplyRun], frames: Sequence[FrameRun]) -> str:
             "",
             "| corrections | n | apply to first frame, median (ms) | median / target "
             "| min - max (ms) | solve on the server (ms) | request round trip (ms) "
-            "| fetch arrays (ms) | upload (ms) | draw (ms) | arrays (MB) |",
-            "|---|---|---|---|---|---|---|---|---|---|---|",
+            "| fetch arrays (ms) | upload (ms) | draw (ms) | arrays (MB) "
+            "| received per correction (kB) |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for r in apply:
             if not r.total_ms:
@@ -316,9 +361,19 @@ def tables(apply: Sequence[ApplyRun], frames: Sequence[FrameRun]) -> str:
                 f"| {min(r.total_ms):.0f} - {max(r.total_ms):.0f} "
                 f"| {median(r.solve_ms):.0f} | {median(r.request_ms):.0f} "
                 f"| {median(r.fetch_ms):.0f} | {median(r.upload_ms):.1f} "
-                f"| {median(r.draw_ms):.1f} | {r.megabytes:.1f} |"
+                f"| {median(r.draw_ms):.1f} | {r.megabytes:.3f} | {r.kilobytes_received:.0f} |"
             )
         out.append("")
+        baseline = [r for r in apply if r.label.startswith("baseline: first")]
+        ours = [r for r in apply if r.label.startswith("this tree: first")]
+        if baseline and ours and baseline[0].total_ms and ours[0].total_ms:
+            b, o = median(baseline[0].total_ms), median(ours[0].total_ms)
+            out += [
+                f"Side by side, first correction: this tree {o:.0f} ms, baseline {b:.0f} ms: "
+                f"**{o / b:.2f}x**; received per correction {ours[0].kilobytes_received:.0f} kB "
+                f"against {baseline[0].kilobytes_received:.0f} kB.",
+                "",
+            ]
         shares = [
             f"{r.label}: {median(r.solve_ms):.0f} ms solving, "
             f"{median(r.request_ms) - median(r.solve_ms):.0f} ms more until the answer arrives, "
@@ -404,6 +459,12 @@ def parse_arguments(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--only", choices=("apply", "frames"), help="run one of the two")
     parser.add_argument("--no-fr079", action="store_true", help="skip Freiburg 079")
     parser.add_argument("--write", type=Path, help="update this README's web_latency section")
+    parser.add_argument(
+        "--baseline",
+        metavar="DIR",
+        help="also serve the hitl-slam found in DIR (its PYTHONPATH, e.g. another checkout's "
+        "python/ folder with its _core built) and time the first correction on both in turns",
+    )
     return parser.parse_args(argv)
 
 
@@ -412,7 +473,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_arguments(argv)
     with browser_or_exit() as browser:
         renderer, version = renderer_and_version(browser)
-        apply = measure_apply(browser, args.repeats) if args.only != "frames" else []
+        trees: list[tuple[str, str | None]] = [("this tree", None)]
+        if args.baseline is not None:
+            here = str(REPO / "python")
+            trees = [("baseline", args.baseline), ("this tree", here)]
+        apply = measure_apply(browser, args.repeats, trees) if args.only != "frames" else []
         frames = (
             run_frames(browser, args.moves, args.gpu_moves, args.no_fr079)
             if args.only != "apply"

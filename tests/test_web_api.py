@@ -125,8 +125,10 @@ def test_state_document(client: TestClient, room: Scenario) -> None:
         "last",
         "inconsistency_m2",
         "history",
+        "lines",
         "journal",
     }
+    assert state["lines"] == []
     assert state["session"] == "room.hitl"
     assert state["name"] == room.map.name
     assert (state["num_poses"], state["num_points"]) == (499, room.map.num_points)
@@ -155,6 +157,10 @@ def test_binary_arrays_are_the_map_in_float32(client: TestClient, room: Scenario
     assert np.array_equal(f32(points.content, 2), m.world_points().astype(np.float32))
     assert np.array_equal(f32(poses.content, 3), m.poses.astype(np.float32))
     assert np.array_equal(np.frombuffer(offsets.content, dtype="<i4"), m.offsets)
+    # The page's own array: each scan's points once, in the robot frame.
+    scans = client.get("/api/map/scans")
+    assert scans.headers["content-type"] == "application/octet-stream"
+    assert np.array_equal(f32(scans.content, 2), m.points.astype(np.float32))
 
 
 # -- interpret, apply, reject -------------------------------------------------------------------
@@ -747,3 +753,75 @@ def test_other_requests_are_answered_while_a_correction_computes(
             assert c.get("/api/state").json()["applied"] == 1
     finally:
         h.close()
+
+
+# -- what the page draws: solved lines and robot-frame scans -------------------------------------
+
+
+def test_state_serves_the_solved_lines(
+    host: SessionHost, client: TestClient, room: Scenario, drawings: list[DrawnCorrection]
+) -> None:
+    """Each correction in effect comes with its solved lines (the session's, not a refit), each
+    as the stretch of that line its observations cover; undo brings the earlier ones back."""
+    states = []
+    for d in drawings[:2]:
+        r = client.post("/api/corrections", json=as_json(d)).json()
+        assert r["accepted"], r
+        states.append(r["state"])
+    session = host.session
+    lines = session.lines
+    state = states[-1]
+    assert [c["index"] for c in state["lines"]] == [0, 1]
+    poses = session.poses
+    for k, (c, h) in enumerate(zip(state["lines"], session.active, strict=True)):
+        assert c["mode"] == h.mode.value
+        for side, rows, row in (("a", h.s_a, 2 * k), ("b", h.s_b, 2 * k + 1)):
+            line = c[side]
+            assert (line["phi"], line["rho"]) == (lines[row, 0], lines[row, 1])
+            normal = np.array([math.cos(line["phi"]), math.sin(line["phi"])])
+            ends = np.array(line["segment"])
+            np.testing.assert_allclose(ends @ normal, line["rho"], atol=1e-9)
+            # It covers its observations: their projections along the line fall within it.
+            along = np.array([-normal[1], normal[0]])
+            t = room.map.observed_points(rows, poses) @ along
+            np.testing.assert_allclose(sorted(ends @ along), [t.min(), t.max()], atol=1e-9)
+    undone = client.post("/api/undo").json()
+    assert undone["lines"] == states[0]["lines"]
+    assert client.post("/api/redo").json()["lines"] == state["lines"]
+
+
+def test_a_correction_costs_the_page_only_its_poses(
+    client: TestClient, room: Scenario, drawings: list[DrawnCorrection]
+) -> None:
+    """The scans are fetched once in the robot frame; a new map is the poses (N * 12 bytes)."""
+    scans = client.get("/api/map/scans").content
+    r = client.post("/api/corrections", json=as_json(drawings[0])).json()
+    assert r["accepted"]
+    assert client.get("/api/map/scans").content == scans
+    poses = client.get("/api/map/poses")
+    assert len(poses.content) == room.map.num_poses * 12
+    assert int(poses.headers["X-Map-Version"]) == r["state"]["version"]
+    # Placed as the page places them, the scans are the world points of the new map.
+    p = f32(poses.content, 3).astype(np.float64)
+    local = f32(scans, 2).astype(np.float64)
+    owner = room.map.pose_of_point()
+    c, s = np.cos(p[owner, 2]), np.sin(p[owner, 2])
+    world = np.stack(
+        [
+            p[owner, 0] + c * local[:, 0] - s * local[:, 1],
+            p[owner, 1] + s * local[:, 0] + c * local[:, 1],
+        ],
+        axis=1,
+    )
+    np.testing.assert_allclose(world, f32(client.get("/api/map/points").content, 2), atol=2e-4)
+
+
+def test_bounds_are_exact_without_placing_every_point(room: Scenario) -> None:
+    from hitl_slam.web.drawing import MapDrawing
+
+    drawing = MapDrawing(room.map)
+    rng = np.random.default_rng(3)
+    for scale in (0.0, 0.3, 5.0):
+        poses = room.map.poses + scale * rng.normal(size=room.map.poses.shape)
+        xy = np.concatenate([room.map.world_points(poses), poses[:, :2]])
+        assert drawing.bounds(poses) == (*xy.min(axis=0), *xy.max(axis=0))

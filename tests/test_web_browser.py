@@ -384,3 +384,101 @@ def test_save_and_journal_step(tmp_path: Path, browser: Any) -> None:
         assert names == [f"lost-poses-corrected.{e}" for e in ("g2o", "pgm", "txt", "yaml")]
         assert "saved" in page.locator("#message").inner_text()
         assert page.errors == []
+
+
+def drawn_lines(page: Any) -> dict[str, Any]:
+    """Where the page draws the applied corrections' lines: world segments, their ends on the
+    screen, and the "1a"/"1b" labels as laid out in the page."""
+    lines = page.evaluate("window.hitl.appliedLines()")
+    ends = [[to_client(page, p) for p in (c[side])] for c in lines for side in ("a", "b")]
+    labels = page.evaluate(
+        """() => [...document.querySelectorAll("#labels span")].map(
+            (s) => [s.textContent, s.getBoundingClientRect().x, s.getBoundingClientRect().y])"""
+    )
+    return {"lines": lines, "ends": ends, "labels": labels}
+
+
+def test_a_reload_shows_every_segment_where_the_live_page_did(
+    browser: Any, demo: Server, first_correction: DrawnCorrection
+) -> None:
+    """A colocation of the two passes of the south wall: live, both solved lines sit on the wall;
+    after a reload they are drawn exactly where they were (the server's lines, not a guess)."""
+    page = open_page(browser, demo.url)
+    assert page.evaluate("window.hitl.hintVisible()")
+    hint = page.locator("#hint").inner_text()
+    assert "press p" in hint, hint
+    assert "Ctrl" in hint, hint
+
+    drawn = DrawnCorrection.make(
+        first_correction.a, first_correction.b, "colocation", first_correction.sigma_h
+    )
+    focus_on(page, drawn)
+    page.keyboard.press("p")
+    draw_pair(page, drawn, ["Control"])
+    assert page.evaluate("window.hitl.mode") == "colocation"
+    page.wait_for_function("window.hitl.highlighted().a > 0 && window.hitl.highlighted().b > 0")
+    version = int(page.evaluate("window.hitl.version"))
+    page.keyboard.press("p")
+    wait_version_above(page, version)
+    page.wait_for_function("window.hitl.appliedLines().length === 1")
+    assert not page.evaluate("window.hitl.hintVisible()")  # the first correction is made
+
+    centre = np.mean(np.array(world(drawn)[0] + world(drawn)[1]), axis=0)
+    view = [float(centre[0]), float(centre[1]), 150.0]
+    page.evaluate("([x, y, s]) => window.hitl.lookAt(x, y, s)", view)
+    page.wait_for_timeout(100)
+    live = drawn_lines(page)
+    (line,) = live["lines"]
+    # Live, segment b lies on the wall with segment a (one line), not where it was drawn.
+    a, b = np.array(line["a"]), np.array(line["b"])
+    direction = (a[1] - a[0]) / np.linalg.norm(a[1] - a[0])
+    normal = np.array([-direction[1], direction[0]])
+    assert np.abs((b - a[0]) @ normal).max() < 0.02, line
+    drawn_b = np.array(drawn.b)
+    assert np.abs((drawn_b - a[0]) @ normal).max() > 0.3  # it was drawn well off the wall
+    assert [text for text, _, _ in live["labels"]] == ["1a", "1b"]
+    save_artifact(page, "colocation-live.png")
+
+    page.reload()
+    page.wait_for_function("window.hitl !== undefined")
+    page.evaluate("window.hitl.ready")
+    page.wait_for_function("window.hitl.appliedLines().length === 1")
+    page.evaluate("([x, y, s]) => window.hitl.lookAt(x, y, s)", view)
+    page.wait_for_timeout(100)
+    reloaded = drawn_lines(page)
+    save_artifact(page, "colocation-reloaded.png")
+    assert reloaded == live
+    assert not page.evaluate("window.hitl.hintVisible()")
+    assert page.errors == []
+
+
+@pytest.mark.parametrize("points", ["gpu", "cpu"])
+def test_both_point_paths_place_the_scans_by_the_poses(
+    browser: Any, demo: Server, first_correction: DrawnCorrection, points: str
+) -> None:
+    """The points drawn by the vertex shader (a pose texture) and by the CPU splat land on the
+    same pixels, before and after a correction moves them."""
+    pages = {}
+    for path in ("gpu", "cpu"):
+        pages[path] = open_page(browser, f"{demo.url}&points={path}")
+        assert pages[path].evaluate("window.hitl.pointsPath") == path
+    assert pages["gpu"].evaluate("window.hitl.placedBy") in ("shader", "cpu")
+    page = pages[points]
+    apply_through_page(page, first_correction)
+    state = demo.state()
+    for p in pages.values():
+        p.wait_for_function(f"window.hitl.version >= {state['version']}")
+        p.evaluate("() => { window.hitl.lookAt(3.2, 2.0, 90); }")
+        p.wait_for_timeout(150)
+    # Only the laser points: orange pixels, in both renderings of the same view.
+    shots = {k: canvas_pixels(p) for k, p in pages.items()}
+    orange = {
+        k: (s[:, :, 0].astype(int) - s[:, :, 2].astype(int) > 60) & (s[:, :, 1] > 100)
+        for k, s in shots.items()
+    }
+    assert orange["gpu"].sum() > 1000
+    assert orange["cpu"].sum() > 1000
+    overlap = (orange["gpu"] & orange["cpu"]).sum() / max(orange["cpu"].sum(), 1)
+    assert overlap > 0.8, overlap
+    for p in pages.values():
+        assert p.errors == []

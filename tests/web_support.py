@@ -150,10 +150,15 @@ class Server:
 
 
 @contextlib.contextmanager
-def serve(cwd: Path, *args: str, timeout: float = 120.0) -> Iterator[Server]:
-    """`hitl-slam serve ARGS --port 0` in ``cwd``; yields once it listens, stops it after."""
+def serve(
+    cwd: Path, *args: str, timeout: float = 120.0, pythonpath: str | None = None
+) -> Iterator[Server]:
+    """`hitl-slam serve ARGS --port 0` in ``cwd``; yields once it listens, stops it after.
+    ``pythonpath``: serve the hitl-slam found there (e.g. another checkout, for a comparison)."""
     command = [sys.executable, "-c", _SERVE, "serve", *args, "--port", "0"]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    if pythonpath is not None:
+        env["PYTHONPATH"] = pythonpath
     process = subprocess.Popen(
         command,
         cwd=cwd,

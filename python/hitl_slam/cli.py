@@ -272,9 +272,9 @@ def _one_line(text: str) -> str:
 
 
 def _cmd_correct(args: argparse.Namespace) -> int:
-    from hitl_slam.corrections_file import Apply, Undo, read_corrections
+    from hitl_slam.corrections_file import Apply, read_corrections
     from hitl_slam.errors import CorrectionRejected
-    from hitl_slam.session import Session, moved_poses
+    from hitl_slam.session import Session, StepRefused, moved_poses
 
     out = Path(args.output)
     _check_map_output(out)
@@ -315,37 +315,27 @@ def _cmd_correct(args: argparse.Namespace) -> int:
             )
         for step in steps:
             before = session.poses
-            t0 = time.perf_counter()
-            if isinstance(step, Apply):
-                mode = step.drawn.mode.value
-                try:
-                    _with_progress(
-                        f"line {step.line}: {mode}", args.quiet, partial(session.apply, step.drawn)
-                    )
-                except CorrectionRejected as exc:
-                    reject(step.line, mode, f"{mode} correction rejected: {_one_line(str(exc))}")
-                    continue
-                counts["applied"] += 1
-                stats = session.history[-1].stats
-                assert stats is not None
-                chi2 = f"{stats.initial_chi2:>16.6f} {stats.final_chi2:>16.6f}"
-                name = mode
-            else:
-                name = "undo" if isinstance(step, Undo) else "redo"
-                possible = session.can_undo if name == "undo" else session.can_redo
-                if not possible:
-                    reject(step.line, name, f"nothing to {name}")
-                    continue
-                if name == "undo":
-                    session.undo()
-                else:
-                    session.redo()
-                counts[name] += 1
-                chi2 = f"{'-':>16} {'-':>16}"
-            elapsed_ms = 1e3 * (time.perf_counter() - t0)
+            name = step.drawn.mode.value if isinstance(step, Apply) else type(step).__name__.lower()
+            try:
+                result = _with_progress(
+                    f"line {step.line}: {name}", args.quiet, partial(session.run_step, step)
+                )
+            except CorrectionRejected as exc:
+                reject(step.line, name, f"{name} correction rejected: {_one_line(str(exc))}")
+                continue
+            except StepRefused as exc:
+                reject(step.line, name, str(exc))
+                continue
+            counts["applied" if result.action == "apply" else result.action] += 1
+            stats = result.entry.stats if result.action == "apply" else None
+            chi2 = (
+                f"{'-':>16} {'-':>16}"
+                if stats is None
+                else f"{stats.initial_chi2:>16.6f} {stats.final_chi2:>16.6f}"
+            )
             moved, _ = moved_poses(before, session.poses)
             if not args.quiet:
-                print(f"{step.line:>5}  {name:<14} {moved:>7} {chi2} {elapsed_ms:>9.2f}")
+                print(f"{step.line:>5}  {name:<14} {moved:>7} {chi2} {1e3 * result.time_s:>9.2f}")
         _with_progress("writing", args.quiet, lambda: session.save(out))
         if session_path is not None:
             session.write_journal(session_path)

@@ -19,6 +19,12 @@ Schema (``PRAGMA user_version`` = :data:`SCHEMA_VERSION`, ``PRAGMA application_i
 
 ``seq`` counts from 1 without gaps; ``time`` is Unix time in seconds; ``payload`` is a JSON object;
 ``poses`` is an optional ``(N, 3)`` float64 .npy checkpoint.
+
+A ``correction`` event's payload holds ``request``, ``interpretation`` and ``stats`` and, since the
+solved lines became part of the state, ``lines``: ``[[phi, rho], ...]``, the solved lines a and b
+of every correction in effect after it, in order (2K pairs of JSON numbers, which round-trip
+exactly). An addition within schema 1: a journal without ``lines`` still opens, its lines refit
+to S_a / S_b at the checkpoint poses (:attr:`hitl_slam.session.Session.lines`).
 """
 
 from __future__ import annotations

@@ -323,7 +323,7 @@ def feature_pair_errors(
     """The paper's Table 1 quantities on ``map`` under ``poses`` (default: the map's).
 
     ``wall_of_point`` ``(P,)`` labels every point with the wall it hit (negative: none). A wall's
-    line is the total-least-squares fit (:func:`hitl_slam.pipeline.fit_line`) to all its points in
+    line is the total-least-squares fit (:func:`hitl_slam.geometry.fit_line`) to all its points in
     the world frame, from every pose that saw it. For each pair ``(wall_a, wall_b, kind, truth)``:
 
     * ``parallel`` / ``perpendicular``: the measured value is the angle between the two

@@ -11,6 +11,7 @@ import enum
 import math
 import os
 import threading
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -20,7 +21,9 @@ from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.corrections_file import Apply, Step, Undo
 from hitl_slam.errors import CorrectionRejected, InputError, SolverError
+from hitl_slam.geometry import fit_line
 from hitl_slam.journal import Event, EventKind, Journal
 from hitl_slam.map import Map
 
@@ -33,8 +36,11 @@ __all__ = [
     "EntryStatus",
     "HistoryEntry",
     "Session",
+    "StepRefused",
+    "StepResult",
     "apply_in_order",
     "moved_poses",
+    "refit_lines",
 ]
 
 MOVED_DISTANCE_M = 1e-3
@@ -45,8 +51,17 @@ MOVED_ANGLE_RAD = 1e-3
 _DIED = "the program ended before the correction finished"
 
 
+class StepRefused(InputError):
+    """An undo or redo with nothing to undo or redo: refused, nothing changed."""
+
+
 class CorrectionOutcome(Protocol):
-    """What an applier returns (``hitl_slam.pipeline.CorrectionResult`` is one)."""
+    """What an applier returns (``hitl_slam.pipeline.CorrectionResult`` is one).
+
+    An outcome may also carry ``lines``: ``(2K, 2)`` the solved ``(phi, rho)`` of every active
+    correction's two lines, in order (the new one last); the session keeps and journals them.
+    An outcome without them (a stand-in applier) has its lines refit to S_a / S_b instead.
+    """
 
     @property
     def poses(self) -> NDArray[np.float64]: ...
@@ -143,6 +158,9 @@ class _Entry:
     stats: CorrectionStats | None = None
     reason: str | None = None
     poses: NDArray[np.float64] | None = None  # checkpoint, while applied or redoable
+    # (2K, 2) solved (phi, rho) of every correction in effect after this one, in order; None in
+    # a journal written before lines were journaled (refit on demand, see Session.lines)
+    lines: NDArray[np.float64] | None = None
 
     def snapshot(self) -> HistoryEntry:
         return HistoryEntry(
@@ -160,6 +178,14 @@ class _Entry:
 def _frozen(poses: NDArray[np.float64]) -> NDArray[np.float64]:
     poses.flags.writeable = False
     return poses
+
+
+def _lines_from_json(data: Any, count: int) -> NDArray[np.float64]:
+    """A journal's ``lines``: ``count`` finite ``[phi, rho]`` pairs (ValueError otherwise)."""
+    lines = np.array(data, dtype=np.float64)
+    if lines.shape != (count, 2) or not np.isfinite(lines).all():
+        raise ValueError(f"lines must be {count} finite [phi, rho] pairs, got shape {lines.shape}")
+    return _frozen(lines)
 
 
 def _drawn_from_json(data: Any) -> DrawnCorrection:
@@ -226,6 +252,8 @@ class _State:
                 raise ValueError("a correction without a valid pose checkpoint")
             entry.interpretation = Interpretation.from_json(event.payload["interpretation"])
             entry.stats = CorrectionStats.from_json(event.payload["stats"])
+            if "lines" in event.payload:  # absent in journals written before lines were kept
+                entry.lines = _lines_from_json(event.payload["lines"], 2 * (len(self.applied) + 1))
             entry.poses = _frozen(np.ascontiguousarray(poses))
             entry.status = EntryStatus.APPLIED
             for dropped in self.redo:
@@ -297,6 +325,42 @@ def _checked_poses(poses: Any, shape: tuple[int, ...]) -> NDArray[np.float64]:
     if not np.isfinite(out).all():
         raise SolverError("the correction returned non-finite poses; the map was not changed")
     return out
+
+
+def _checked_lines(outcome: Any, count: int) -> NDArray[np.float64] | None:
+    """The outcome's solved lines as a ``(count, 2)`` float64 array; None when it has none."""
+    lines = getattr(outcome, "lines", None)
+    if lines is None:
+        return None
+    out = np.array(lines, dtype=np.float64, order="C")
+    if out.shape != (count, 2):
+        raise SolverError(f"the correction returned lines of shape {out.shape}, expected {count}")
+    if not np.isfinite(out).all():
+        raise SolverError("the correction returned non-finite lines; the map was not changed")
+    return out
+
+
+def refit_lines(
+    map: Map, poses: NDArray[np.float64], active: Sequence[Interpretation]
+) -> NDArray[np.float64]:
+    """``(2K, 2)`` total-least-squares ``(phi, rho)`` of each correction's S_a and S_b under
+    ``poses``: the lines of a step whose solved lines were not journaled."""
+    out = np.empty((2 * len(active), 2), dtype=np.float64)
+    for k, h in enumerate(active):
+        out[2 * k] = fit_line(map.observed_points(h.s_a, poses))
+        out[2 * k + 1] = fit_line(map.observed_points(h.s_b, poses))
+    return _frozen(out)
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """What :meth:`Session.run_step` did: ``action`` "apply", "undo" or "redo"; the applier's
+    ``outcome`` (apply only); the history entry the step concerned; its wall time [s]."""
+
+    action: str
+    outcome: CorrectionOutcome | None
+    entry: HistoryEntry
+    time_s: float
 
 
 def apply_in_order(
@@ -435,6 +499,22 @@ class Session:
             return self._state.active()
 
     @property
+    def lines(self) -> NDArray[np.float64]:
+        """``(2K, 2)`` read-only: the solved ``(phi, rho)`` of each applied correction's lines a
+        and b, in the order of :attr:`active`, as the solve of the map in effect left them
+        (undo and redo restore them with the poses). For a step of a journal written before
+        lines were journaled, or of an applier that returns none, they are refit (total least
+        squares) to S_a and S_b under that step's poses, once."""
+        with self._guard:
+            top = self._state.applied[-1] if self._state.applied else None
+            if top is None:
+                return _frozen(np.empty((0, 2), dtype=np.float64))
+            if top.lines is None:
+                assert top.poses is not None
+                top.lines = refit_lines(self._map, top.poses, self._state.active())
+            return top.lines
+
+    @property
     def corrections(self) -> list[DrawnCorrection]:
         """The raw input of the applied corrections, in order."""
         with self._guard:
@@ -482,6 +562,7 @@ class Session:
             try:
                 outcome = apply(self._map, before, drawn, active, self._config)
                 after = _checked_poses(outcome.poses, before.shape)
+                lines = _checked_lines(outcome, 2 * (len(active) + 1))
                 interpretation = outcome.interpretation.to_json()
                 stats = _stats(before, after, outcome)
             except CorrectionRejected as exc:
@@ -493,12 +574,16 @@ class Session:
             except BaseException as exc:
                 self._interrupt(seq, f"{type(exc).__name__}: {exc}")
                 raise
+            payload: dict[str, Any] = {
+                "request": seq,
+                "interpretation": interpretation,
+                "stats": stats.to_json(),
+            }
+            if lines is not None:
+                # JSON floats round-trip exactly: the reopened session has these very values.
+                payload["lines"] = lines.tolist()
             try:
-                self._record(
-                    EventKind.CORRECTION,
-                    {"request": seq, "interpretation": interpretation, "stats": stats.to_json()},
-                    after,
-                )
+                self._record(EventKind.CORRECTION, payload, after)
             except BaseException:
                 with self._guard:
                     self._state.close_pending("the result could not be journaled")
@@ -509,7 +594,7 @@ class Session:
         """Undo the last applied correction: the map returns exactly to what it was before it.
 
         Raises:
-            InputError: nothing to undo.
+            StepRefused: nothing to undo (an InputError).
         """
         return self._step(EventKind.UNDO)
 
@@ -517,9 +602,30 @@ class Session:
         """Redo the last undone correction (its stored result; nothing is recomputed).
 
         Raises:
-            InputError: nothing to redo.
+            StepRefused: nothing to redo (an InputError).
         """
         return self._step(EventKind.REDO)
+
+    def run_step(self, step: Step) -> StepResult:
+        """Do one step of a corrections file or journal (:mod:`hitl_slam.corrections_file`):
+        apply its correction, or undo, or redo. The one place the CLI, the web host and tests
+        replay steps through.
+
+        Raises:
+            CorrectionRejected: the correction cannot be interpreted (nothing changed).
+            StepRefused: an undo or redo with nothing to undo or redo (nothing changed).
+            SolverError: the solve failed (the request is journaled as interrupted).
+        """
+        t0 = time.perf_counter()
+        if isinstance(step, Apply):
+            outcome: CorrectionOutcome | None = self.apply(step.drawn)
+            entry = self.history[-1]
+            action = "apply"
+        else:
+            outcome = None
+            action = "undo" if isinstance(step, Undo) else "redo"
+            entry = self.undo() if action == "undo" else self.redo()
+        return StepResult(action, outcome, entry, time.perf_counter() - t0)
 
     def _step(self, kind: EventKind) -> HistoryEntry:
         with self._operation:
@@ -527,7 +633,7 @@ class Session:
             with self._guard:
                 stack = self._state.applied if kind is EventKind.UNDO else self._state.redo
                 if not stack:
-                    raise InputError(f"nothing to {kind.value}")
+                    raise StepRefused(f"nothing to {kind.value}")
                 entry = stack[-1]
             self._record(kind, {"request": entry.seq})
             return entry.snapshot()

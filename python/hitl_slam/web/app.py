@@ -170,6 +170,11 @@ def create_app(
     def points() -> Response:
         return binary(*host.points())
 
+    @app.get("/api/map/scans", response_class=Response)
+    def scans() -> Response:
+        # Robot-frame points: they never change, so the page fetches them once.
+        return binary(None, host.scans())
+
     @app.get("/api/map/poses", response_class=Response)
     def poses() -> Response:
         return binary(*host.poses())

@@ -1,22 +1,22 @@
-"""SessionHost: the one editing :class:`~hitl_slam.session.Session` every browser tab shares, with a
-version counter that long-polling clients wait on, the binary arrays they draw, relation residuals,
-the inconsistency metric computed off the request path, and save/export paths kept inside the
-session's folder. No HTTP here: :mod:`hitl_slam.web.app` is a thin layer over these methods.
+"""SessionHost: the one editing :class:`~hitl_slam.session.Session` every browser tab shares:
+changes run one at a time, each publishes a :class:`Snapshot` under a version counter that
+long-polling clients wait on. What it hands out comes from the modules named after each concept:
+the arrays and lines the page draws (:mod:`~hitl_slam.web.drawing`), relation residuals
+(:mod:`~hitl_slam.web.relations`), the inconsistency off the request path
+(:mod:`~hitl_slam.web.metric`), paths kept inside the session's folder
+(:mod:`~hitl_slam.web.folder`) and the JSON documents (:mod:`~hitl_slam.web.documents`). No HTTP
+here: :mod:`hitl_slam.web.app` is a thin layer over these methods.
 """
 
 from __future__ import annotations
 
-import base64
 import contextlib
 import dataclasses
-import hashlib
 import logging
 import math
 import os
-import re
 import threading
 import time
-from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -24,11 +24,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.corrections import DrawnCorrection, Interpretation
 from hitl_slam.corrections_file import Apply, Step, Undo
 from hitl_slam.errors import CorrectionRejected, HitlSlamError, InputError, SolverError
-from hitl_slam.geometry import fit_line, to_world
-from hitl_slam.session import HistoryEntry, Session
+from hitl_slam.session import HistoryEntry, Session, StepRefused
+from hitl_slam.web import documents, folder
+from hitl_slam.web.drawing import MapDrawing
+from hitl_slam.web.folder import SAVE_FORMATS, OutsideFolder
+from hitl_slam.web.metric import MetricWorker
+from hitl_slam.web.relations import relation_residuals
 
 __all__ = [
     "DEFAULT_POLL_TIMEOUT",
@@ -44,19 +48,9 @@ logger = logging.getLogger(__name__)
 DEFAULT_POLL_TIMEOUT = 20.0
 """[s] How long ``GET /api/state?after=V`` waits for a change before answering anyway."""
 
-SAVE_FORMATS = (".txt", ".g2o", ".pgm")
-"""What ``POST /api/save`` writes (the ``.pgm`` brings its ``.yaml``)."""
-
-_SAVE_NAME = re.compile(r"[A-Za-z0-9._-]{1,100}")
-_METRIC_CACHE = 64  # inconsistency values remembered by pose hash, so undo/redo show one at once
-
 
 class NothingToDo(InputError):
     """An undo, redo or journal step with nothing left to do (HTTP 409)."""
-
-
-class OutsideFolder(InputError):
-    """A save or export path that would leave the session's folder (HTTP 403)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -66,9 +60,9 @@ class Snapshot:
     version: int
     map_version: int  # the version at which the poses last changed
     poses: NDArray[np.float64]  # (N, 3) read-only, the session's own checkpoint array
-    points_f32: bytes  # (P, 2) world points, float32 little-endian
     poses_f32: bytes  # (N, 3) float32 little-endian
     bounds: tuple[float, float, float, float]
+    lines: tuple[dict[str, Any], ...]  # the solved lines in effect, as State.lines items
     history: tuple[HistoryEntry, ...]
     active: tuple[Interpretation, ...]
     can_undo: bool
@@ -76,22 +70,6 @@ class Snapshot:
     last: dict[str, Any] | None
     inconsistency_m2: float | None
     journal_next: int
-
-
-def _segment_json(segment: Any) -> list[list[float]]:
-    return [
-        [float(segment[0][0]), float(segment[0][1])],
-        [float(segment[1][0]), float(segment[1][1])],
-    ]
-
-
-def _indices_json(values: NDArray[np.int64]) -> list[int]:
-    out: list[int] = values.astype(np.int64).tolist()
-    return out
-
-
-def _pose_key(poses: NDArray[np.float64]) -> bytes:
-    return hashlib.blake2b(np.ascontiguousarray(poses).tobytes(), digest_size=16).digest()
 
 
 class SessionHost:
@@ -123,10 +101,7 @@ class SessionHost:
             raise InputError(f"poll_timeout must be a number of seconds >= 0, got {poll_timeout}")
         self._session = session
         self._map = session.input_map
-        if self._map.num_points >= 2**31:
-            raise InputError("the map has over 2^31 points; the web UI cannot index them")
-        self._owner = self._map.pose_of_point()
-        self._offsets_i32 = self._map.offsets.astype("<i4").tobytes()
+        self._drawing = MapDrawing(self._map)
         self._steps = tuple(journal)
         self._journal_source = journal_source
         self.poll_timeout = float(poll_timeout)
@@ -135,16 +110,12 @@ class SessionHost:
         self._changed = threading.Condition(self._lock)
         self._listeners: list[Callable[[], None]] = []
         self._closing = False
-        self._metric_values: OrderedDict[bytes, float] = OrderedDict()
-        self._metric_job: tuple[int, NDArray[np.float64]] | None = None
-        self._metric_wake = threading.Condition()
-        self._metric_thread: threading.Thread | None = None
+        self._world: tuple[NDArray[np.float64], bytes] | None = None  # world points, on demand
+        self._world_lock = threading.Lock()
+        self._metric: MetricWorker | None = None
         self._snapshot = self._build(None, None, 0)
         if metrics:
-            self._metric_thread = threading.Thread(
-                target=self._metric_loop, name="hitl-slam-metric", daemon=True
-            )
-            self._metric_thread.start()
+            self._metric = MetricWorker(self._map, session.config, self._publish_metric)
             self._request_metric(self._snapshot)
 
     # -- reading ----------------------------------------------------------------------------
@@ -195,7 +166,8 @@ class SessionHost:
             "can_redo": snap.can_redo,
             "last": None if snap.last is None else dict(snap.last),
             "inconsistency_m2": snap.inconsistency_m2,
-            "history": [self._history_json(e) for e in snap.history],
+            "history": [documents.history_item(e) for e in snap.history],
+            "lines": list(snap.lines),
             "journal": {
                 "loaded": len(self._steps),
                 "next": snap.journal_next,
@@ -226,9 +198,18 @@ class SessionHost:
             self._listeners.remove(callback)
 
     def points(self) -> tuple[int, bytes]:
-        """(version, float32 LE (P, 2) world points of the current poses, pose by pose)."""
+        """(version, float32 LE (P, 2) world points of the current poses, pose by pose), built
+        on demand and kept for the current poses (the page itself uses :meth:`scans`)."""
         snap = self.snapshot
-        return snap.version, snap.points_f32
+        with self._world_lock:
+            if self._world is None or self._world[0] is not snap.poses:
+                self._world = (snap.poses, self._drawing.world_points(snap.poses))
+            return snap.version, self._world[1]
+
+    def scans(self) -> bytes:
+        """float32 LE (P, 2): every scan's points in its robot's frame, pose by pose. They never
+        change: a page fetches them once and places them with the poses."""
+        return self._drawing.scans_f32
 
     def poses(self) -> tuple[int, bytes]:
         """(version, float32 LE (N, 3) current poses)."""
@@ -237,34 +218,13 @@ class SessionHost:
 
     def offsets(self) -> bytes:
         """int32 LE (N + 1,): pose i's points are points[offsets[i]:offsets[i + 1]]."""
-        return self._offsets_i32
+        return self._drawing.offsets_i32
 
     def relations(self) -> list[dict[str, Any]]:
         """For each correction in effect: its relation residual on the current poses, from lines
         refit (total least squares) to S_a and S_b as the current poses place them."""
         snap = self.snapshot
-        out = []
-        for index, h in self._active_with_index(snap):
-            a = self._map.observed_points(h.s_a, snap.poses)
-            b = self._map.observed_points(h.s_b, snap.poses)
-            phi_a, rho_a = fit_line(a)
-            phi_b, _ = fit_line(b)
-            # Lines have no direction: fold the angle between normals into [0, 90] degrees.
-            diff = abs((phi_b - phi_a + math.pi / 2) % math.pi - math.pi / 2)
-            angle = math.degrees(diff)
-            if h.mode is Mode.PERPENDICULAR:
-                angle = abs(90.0 - angle)
-            centre_a, centre_b = a.mean(axis=0), b.mean(axis=0)
-            offset: float | None = None
-            if h.mode is Mode.COLLINEAR:
-                normal = np.array([math.cos(phi_a), math.sin(phi_a)])
-                offset = abs(float(normal @ centre_b) - rho_a)
-            elif h.mode is Mode.COLOCATION:
-                offset = float(np.hypot(*(centre_b - centre_a)))
-            out.append(
-                {"index": index, "mode": h.mode.value, "angle_deg": angle, "offset_m": offset}
-            )
-        return out
+        return relation_residuals(self._map, snap.poses, self._active_with_index(snap))
 
     def interpret(self, drawn: DrawnCorrection) -> dict[str, Any]:
         """The Preview of ``drawn`` on the current poses: EM only, nothing changes or is
@@ -276,7 +236,7 @@ class SessionHost:
             h = interpret(self._map, snap.poses, drawn, self._session.config)
         except CorrectionRejected as exc:
             return {"accepted": False, "reason": str(exc)}
-        return self._preview(h)
+        return documents.preview(self._map, h)
 
     # -- changing ---------------------------------------------------------------------------
 
@@ -286,7 +246,7 @@ class SessionHost:
         with the reason and leaves the map unchanged."""
         with self._operation:
             self._check_open()
-            return self._apply(drawn, "")
+            return self._run(Apply(drawn), "")
 
     def undo(self) -> dict[str, Any]:
         """Undo the last applied correction; the new State.
@@ -294,7 +254,7 @@ class SessionHost:
         Raises:
             NothingToDo: nothing to undo.
         """
-        return self._step(undo=True)
+        return self._step(Undo())
 
     def redo(self) -> dict[str, Any]:
         """Redo the last undone correction; the new State.
@@ -302,7 +262,9 @@ class SessionHost:
         Raises:
             NothingToDo: nothing to redo.
         """
-        return self._step(undo=False)
+        from hitl_slam.corrections_file import Redo
+
+        return self._step(Redo())
 
     def journal_step(self) -> dict[str, Any]:
         """Apply the next step of the loaded corrections file, as :meth:`apply` (or an undo or
@@ -323,19 +285,7 @@ class SessionHost:
                 raise NothingToDo(f"all {len(self._steps)} steps of the journal were taken")
             step = self._steps[index]
             where = f"journal line {step.line}: " if step.line else ""
-            if isinstance(step, Apply):
-                return self._apply(step.drawn, where, index + 1)
-            undo = isinstance(step, Undo)
-            name = "undo" if undo else "redo"
-            possible = self._session.can_undo if undo else self._session.can_redo
-            if not possible:
-                reason = f"{where}nothing to {name}"
-                snap = self._publish(
-                    self._last("reject", 0.0, reason=reason), journal_next=index + 1
-                )
-                return {"accepted": False, "reason": reason, "state": self.state(snap)}
-            snap = self._do_step(undo, index + 1)
-            return {"accepted": True, "state": self.state(snap), "solve_ms": 0.0, "preview": None}
+            return self._run(step, where, index + 1)
 
     def save(self, name: str | None = None) -> list[str]:
         """Write the corrected map beside the session as ``name`` + ``.txt`` (TUM), ``.g2o``,
@@ -346,22 +296,18 @@ class SessionHost:
                 no ``..``), or a file cannot be written.
             OutsideFolder: a file of that name is a link leading out of the folder.
         """
-        folder = self.folder
+        where = self.folder
         path = self._session.path
         assert path is not None  # folder checked it
         stem = os.path.splitext(os.path.basename(path))[0] + "-corrected" if name is None else name
-        if not _SAVE_NAME.fullmatch(stem) or stem.startswith(".") or ".." in stem:
-            raise InputError(
-                f"cannot save as {stem!r}: give a plain file name of letters, digits, '.', '_' "
-                "and '-' (up to 100, not starting with a dot), without a folder or extension"
-            )
-        targets = [self._inside(folder, stem + ext) for ext in SAVE_FORMATS]
-        yaml = self._contained(folder, os.path.splitext(targets[2])[0] + ".yaml")
+        folder.check_save_name(stem)
+        targets = [folder.inside(where, stem + ext) for ext in SAVE_FORMATS]
+        yaml = folder.contained(where, os.path.splitext(targets[2])[0] + ".yaml")
         with self._operation:
             self._check_open()
             for target in targets:
-                self._write(self._session.save, target)
-        return [os.path.relpath(t, folder) for t in (*targets, yaml)]
+                folder.write(self._session.save, target)
+        return [os.path.relpath(t, where) for t in (*targets, yaml)]
 
     def export(self, relative: str) -> list[str]:
         """Write one file at ``relative`` (to the session's folder), format from its extension:
@@ -377,8 +323,8 @@ class SessionHost:
 
         if "\x00" in relative:
             raise InputError("the path contains a NUL byte; give a plain file name")
-        folder = self.folder
-        target = self._inside(folder, relative)
+        where = self.folder
+        target = folder.inside(where, relative)
         extension = os.path.splitext(target)[1].lower()
         if extension not in (*EXPORT_EXTENSIONS, ".jsonl"):
             raise InputError(
@@ -387,23 +333,21 @@ class SessionHost:
             )
         files = [target]
         if extension == ".pgm":
-            files.append(self._contained(folder, os.path.splitext(target)[0] + ".yaml"))
+            files.append(folder.contained(where, os.path.splitext(target)[0] + ".yaml"))
         with self._operation:
             self._check_open()
             if extension == ".jsonl":
-                self._write(self._session.export_corrections, target)
+                folder.write(self._session.export_corrections, target)
             else:
-                self._write(self._session.save, target)
-        return [os.path.relpath(f, folder) for f in files]
+                folder.write(self._session.save, target)
+        return [os.path.relpath(f, where) for f in files]
 
     def close(self) -> None:
         """Wake every waiter, stop the metric thread and close the session (waits for a running
         correction to finish; everything acknowledged is already journaled). Idempotent."""
         self.wake_all()
-        with self._metric_wake:
-            self._metric_wake.notify_all()
-        if self._metric_thread is not None:
-            self._metric_thread.join(timeout=30.0)
+        if self._metric is not None:
+            self._metric.close()
         with self._operation:
             self._session.close()
 
@@ -421,13 +365,15 @@ class SessionHost:
         if self._session.closed:
             raise InputError("the session is closed; restart `hitl-slam serve`")
 
-    def _apply(
-        self, drawn: DrawnCorrection, where: str, journal_next: int | None = None
-    ) -> dict[str, Any]:
+    def _run(self, step: Step, where: str, journal_next: int | None = None) -> dict[str, Any]:
+        """One step through :meth:`Session.run_step` (operation lock held); the Applied
+        document (``preview: null`` for an undo or redo)."""
         t0 = time.perf_counter()
         try:
-            outcome = self._session.apply(drawn)
+            done = self._session.run_step(step)
         except CorrectionRejected as exc:
+            reason = f"{where}{exc}"
+        except StepRefused as exc:
             reason = f"{where}{exc}"
         except SolverError as exc:
             reason = f"{where}the solve failed ({exc}); the map was not changed"
@@ -435,13 +381,24 @@ class SessionHost:
             # E.g. the journal cannot be written: the map did not change, but the history may
             # show the request as interrupted; publish that before the error is answered.
             self._publish(
-                self._last("reject", 1e3 * (time.perf_counter() - t0), reason=f"{where}{exc}"),
+                documents.last_change(
+                    "reject", 1e3 * (time.perf_counter() - t0), reason=f"{where}{exc}"
+                ),
                 journal_next=journal_next,
             )
             raise
         else:
+            if done.outcome is None:
+                snap = self._publish(self._step_change(done.action, done.time_s), journal_next)
+                return {
+                    "accepted": True,
+                    "state": self.state(snap),
+                    "solve_ms": 0.0,
+                    "preview": None,
+                }
+            outcome = done.outcome
             solve_ms = 1e3 * float(outcome.time_s)
-            last = self._last(
+            last = documents.last_change(
                 "apply",
                 solve_ms,
                 cost=float(outcome.final_chi2),
@@ -453,86 +410,61 @@ class SessionHost:
                 "accepted": True,
                 "state": self.state(snap),
                 "solve_ms": solve_ms,
-                "preview": self._preview(outcome.interpretation),
+                "preview": documents.preview(self._map, outcome.interpretation),
             }
         elapsed = 1e3 * (time.perf_counter() - t0)
         snap = self._publish(
-            self._last("reject", elapsed, reason=reason), journal_next=journal_next
+            documents.last_change("reject", elapsed, reason=reason), journal_next=journal_next
         )
         return {"accepted": False, "reason": reason, "state": self.state(snap)}
 
-    def _step(self, undo: bool) -> dict[str, Any]:
+    def _step(self, step: Step) -> dict[str, Any]:
         with self._operation:
             self._check_open()
-            possible = self._session.can_undo if undo else self._session.can_redo
-            if not possible:
-                raise NothingToDo(f"nothing to {'undo' if undo else 'redo'}")
-            return self.state(self._do_step(undo))
+            try:
+                done = self._session.run_step(step)
+            except StepRefused as exc:
+                raise NothingToDo(str(exc)) from None
+            return self.state(self._publish(self._step_change(done.action, done.time_s)))
 
-    def _do_step(self, undo: bool, journal_next: int | None = None) -> Snapshot:
-        t0 = time.perf_counter()
-        if undo:
-            self._session.undo()
-        else:
-            self._session.redo()
-        elapsed = 1e3 * (time.perf_counter() - t0)
+    def _step_change(self, action: str, time_s: float) -> dict[str, Any]:
+        """The ``last`` of an undo or redo: the cost of the map now in effect, as its last solve
+        left it (0 for the input map, which no correction solved)."""
         history = self._session.history
-        # The cost shown is that of the map now in effect, as its last solve left it (0 for the
-        # input map, which no correction solved).
         top = next((e for e in reversed(history) if e.status.value == "applied"), None)
         stats = None if top is None else top.stats
         cost = 0.0 if stats is None else stats.final_chi2
-        return self._publish(
-            self._last("undo" if undo else "redo", elapsed, cost=cost, initial_cost=cost),
-            journal_next=journal_next,
-        )
-
-    @staticmethod
-    def _last(
-        kind: str,
-        time_ms: float,
-        *,
-        cost: float = 0.0,
-        initial_cost: float = 0.0,
-        iterations: int = 0,
-        reason: str | None = None,
-    ) -> dict[str, Any]:
-        return {
-            "kind": kind,
-            "time_ms": time_ms,
-            "cost": cost,
-            "initial_cost": initial_cost,
-            "iterations": iterations,
-            "reason": reason,
-        }
+        return documents.last_change(action, 1e3 * time_s, cost=cost, initial_cost=cost)
 
     def _build(
         self, last: dict[str, Any] | None, previous: Snapshot | None, journal_next: int
     ) -> Snapshot:
         """A snapshot of the session as it is now, its versions still to be set by
         :meth:`_publish` (called with the operation lock held, or before any client exists).
-        The arrays are recomputed only when the poses changed."""
+        The arrays and lines are recomputed only when the poses changed."""
         session = self._session
         poses = session.poses
+        history = tuple(session.history)
         if previous is not None and previous.poses is poses:
-            points_f32, poses_f32, bounds = previous.points_f32, previous.poses_f32, previous.bounds
+            poses_f32, bounds, lines = previous.poses_f32, previous.bounds, previous.lines
         else:
-            world = to_world(poses, self._owner, self._map.points)
-            points_f32 = world.astype("<f4").tobytes()
-            poses_f32 = poses.astype("<f4").tobytes()
-            # Column by column: a reduction over axis 0 of an (N, 2) array is strided and slow.
-            xs, ys = (np.concatenate([world[:, k], poses[:, k]]) for k in (0, 1))
-            bounds = (float(xs.min()), float(ys.min()), float(xs.max()), float(ys.max()))
-        with self._lock:
-            known = self._metric_values.get(_pose_key(poses))
+            poses_f32 = self._drawing.poses_f32(poses)
+            bounds = self._drawing.bounds(poses)
+            active = [
+                (e.index, e.interpretation)
+                for e in history
+                if e.status.value == "applied" and e.interpretation is not None
+            ]
+            lines = tuple(self._drawing.line_segments(poses, active, session.lines))
+        known = None if self._metric is None else self._metric.known(poses)
         return Snapshot(
             version=1,
             map_version=1,
             poses=poses,
-            points_f32=points_f32,
             poses_f32=poses_f32,
             bounds=bounds,
-            history=tuple(session.history),
+            lines=lines,
+            history=history,
             active=tuple(session.active),
             can_undo=session.can_undo,
             can_redo=session.can_redo,
@@ -541,7 +473,7 @@ class SessionHost:
             journal_next=journal_next,
         )
 
-    def _publish(self, last: dict[str, Any] | None, *, journal_next: int | None = None) -> Snapshot:
+    def _publish(self, last: dict[str, Any] | None, journal_next: int | None = None) -> Snapshot:
         previous = self.snapshot
         built = self._build(
             last, previous, previous.journal_next if journal_next is None else journal_next
@@ -574,37 +506,11 @@ class SessionHost:
     # -- the inconsistency metric, off the request path ---------------------------------------
 
     def _request_metric(self, snap: Snapshot) -> None:
-        if self._metric_thread is None:
-            return
-        with self._metric_wake:
-            self._metric_job = (snap.map_version, snap.poses)  # only the newest map matters
-            self._metric_wake.notify_all()
-
-    def _metric_loop(self) -> None:
-        from hitl_slam.metrics import inconsistency
-
-        while True:
-            with self._metric_wake:
-                self._metric_wake.wait_for(lambda: self._metric_job is not None or self._closing)
-                if self._closing:
-                    return
-                job = self._metric_job
-                self._metric_job = None
-            assert job is not None
-            map_version, poses = job
-            try:
-                # One thread: the cores are left to the solver of the next correction.
-                total = inconsistency(self._map, poses, self._session.config, threads=1).total_m2
-            except HitlSlamError as exc:
-                logger.warning("inconsistency not computed: %s", exc)
-                continue
-            self._publish_metric(map_version, poses, float(total))
+        if self._metric is not None:
+            self._metric.request(snap.map_version, snap.poses)
 
     def _publish_metric(self, map_version: int, poses: NDArray[np.float64], total: float) -> None:
         with self._changed:
-            self._metric_values[_pose_key(poses)] = total
-            while len(self._metric_values) > _METRIC_CACHE:
-                self._metric_values.popitem(last=False)
             current = self._snapshot
             if current.map_version != map_version or current.inconsistency_m2 is not None:
                 return
@@ -624,70 +530,3 @@ class SessionHost:
             for e in snap.history
             if e.status.value == "applied" and e.interpretation is not None
         ]
-
-    def _global(self, rows: NDArray[np.int64]) -> str:
-        index = self._map.point_rows(rows)
-        return base64.b64encode(index.astype("<u4").tobytes()).decode("ascii")
-
-    def _preview(self, h: Interpretation) -> dict[str, Any]:
-        return {
-            "accepted": True,
-            "mode": h.mode.value,
-            "line_a": _segment_json(h.line_a),
-            "line_b": _segment_json(h.line_b),
-            "x_a": _indices_json(h.x_a),
-            "x_b": _indices_json(h.x_b),
-            "notes": list(h.notes),
-            "s_a": self._global(h.s_a),
-            "s_b": self._global(h.s_b),
-        }
-
-    @staticmethod
-    def _history_json(entry: HistoryEntry) -> dict[str, Any]:
-        h = entry.interpretation
-        return {
-            "index": entry.index,
-            "mode": entry.mode.value,
-            "status": entry.status.value,
-            "reason": entry.reason,
-            "line_a": None if h is None else _segment_json(h.line_a),
-            "line_b": None if h is None else _segment_json(h.line_b),
-            "drawn": entry.drawn.to_json(),
-            "x_a": [] if h is None else _indices_json(h.x_a),
-            "x_b": [] if h is None else _indices_json(h.x_b),
-        }
-
-    @staticmethod
-    def _inside(folder: str, relative: str) -> str:
-        """``relative`` resolved (links followed) inside ``folder``, or OutsideFolder."""
-        if "\x00" in relative:
-            raise InputError("the path contains a NUL byte; give a plain file name")
-        parts = relative.replace("\\", "/").split("/")
-        if not relative or os.path.isabs(relative) or relative.startswith("~") or ".." in parts:
-            raise OutsideFolder(
-                f"path outside the session folder: {relative!r}; give a file name relative to "
-                "the session's folder, without '..'"
-            )
-        return SessionHost._contained(folder, os.path.join(folder, relative))
-
-    @staticmethod
-    def _contained(folder: str, path: str) -> str:
-        """``path`` with every link resolved, if that stays inside ``folder``; else
-        OutsideFolder (a link inside the folder may point anywhere)."""
-        target = os.path.realpath(path)
-        if os.path.commonpath([folder, target]) != folder or target == folder:
-            raise OutsideFolder(
-                f"path outside the session folder: {os.path.relpath(path, folder)!r} leads to "
-                f"{target}; give a file name inside the session's folder"
-            )
-        return target
-
-    @staticmethod
-    def _write(work: Callable[[str], object], target: str) -> None:
-        try:
-            work(target)
-        except OSError as exc:
-            raise InputError(
-                f"{target}: cannot write the file ({exc.strerror or exc}); check that the folder "
-                "exists and is writable"
-            ) from None

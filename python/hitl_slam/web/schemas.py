@@ -14,6 +14,7 @@ from hitl_slam.corrections import DrawnCorrection
 __all__ = [
     "Applied",
     "AppliedAccepted",
+    "CorrectionLines",
     "Drawn",
     "ExportRequest",
     "Files",
@@ -26,6 +27,7 @@ __all__ = [
     "Rejected",
     "Relation",
     "SaveRequest",
+    "SolvedLine",
     "State",
 ]
 
@@ -96,6 +98,21 @@ class JournalInfo(_Response):
     source: str | None
 
 
+class SolvedLine(_Response):
+    phi: float  # [rad] the line is x cos(phi) + y sin(phi) = rho (world frame)
+    rho: float  # [m]
+    segment: list[list[float]]  # the stretch its observations (S_a or S_b) cover, as drawn
+
+
+class CorrectionLines(_Response):
+    """A correction in effect with its solved lines a and b (an addition to the contract)."""
+
+    index: int  # its history index
+    mode: ModeName
+    a: SolvedLine
+    b: SolvedLine
+
+
 class State(_Response):
     version: int
     map_version: int  # the version at which the poses last changed (an addition to the contract)
@@ -110,6 +127,7 @@ class State(_Response):
     last: Last | None
     inconsistency_m2: float | None
     history: list[HistoryItem]
+    lines: list[CorrectionLines]  # the corrections in effect, in order, with their solved lines
     journal: JournalInfo
 
 

@@ -84,19 +84,19 @@ export function getState(after = null, signal = undefined) {
   return getJson(after === null ? "api/state" : `api/state?after=${after}`, signal);
 }
 
-/** The current map's arrays: points (P*2 float32), poses (N*3 float32), and their version. */
-export async function getMapArrays(withOffsets = false) {
-  const jobs = [getBinary("api/map/points"), getBinary("api/map/poses")];
-  if (withOffsets) jobs.push(getBinary("api/map/offsets"));
-  const [points, poses, offsets] = await Promise.all(jobs);
-  return {
-    points: new Float32Array(points.buffer),
-    poses: new Float32Array(poses.buffer),
-    offsets: offsets ? new Int32Array(offsets.buffer) : null,
-    // Two requests may straddle a change; the caller refetches when these differ.
-    version: points.version,
-    consistent: points.version === poses.version,
-  };
+/**
+ * The map's scans, fetched once: every point in its robot's frame (P*2 float32) and the per-pose
+ * offsets (N+1 int32). They never change; the poses place them.
+ */
+export async function getScans() {
+  const [points, offsets] = await Promise.all([getBinary("api/map/scans"), getBinary("api/map/offsets")]);
+  return { points: new Float32Array(points.buffer), offsets: new Int32Array(offsets.buffer) };
+}
+
+/** The current poses (N*3 float32) and the state version they are of: all a new map costs. */
+export async function getPoses() {
+  const poses = await getBinary("api/map/poses");
+  return { poses: new Float32Array(poses.buffer), version: poses.version };
 }
 
 /** POST /api/interpret: the EM interpretation only (S_a, S_b, P_a, P_b); changes nothing. */

@@ -18,12 +18,17 @@
 //   preview          the last /api/interpret answer for the pending pair, or null
 //   lastRedrawMs     time from sending an apply request to the first frame drawn with its map
 //   lastRedraw       its split: {version, totalMs, requestMs, solveMs, fetchMs, uploadMs, drawMs,
-//                    bytes}; fetch and upload are of the map arrays, draw of that first frame
+//                    bytes}; fetch and upload are of the new poses (the scans stay on the page),
+//                    draw of that first frame
+//   appliedLines()   the applied corrections' lines as drawn: [{index, mode, a, b}], a and b
+//                    each [[x0, y0], [x1, y1]] in world metres (the server's State.lines)
+//   hintVisible()    whether the first-use hint (how to start a correction) shows
 //   frameTimes()     recent frame durations [ms], each up to a 1-pixel readPixels (GPU done)
 //   rafIntervals()   recent intervals between consecutive animation frames [ms]
 //   splatTimes()     of the frame times, the part spent counting points on the CPU ("cpu" path)
 //   renderer         the WebGL renderer string; numPoints: laser points shown
 //   pointsPath       "gpu" (GL_POINTS) or "cpu" (splatted, on a software WebGL); see view.js
+//   placedBy         for "gpu": "shader" (points placed by a pose texture) or "cpu"
 
 /** Defines window.hitl over `app` (the App of main.js). */
 export function installHooks(app) {
@@ -65,6 +70,12 @@ export function installHooks(app) {
     get pointsPath() {
       return app.view.pointsPath;
     },
+    get placedBy() {
+      return app.view.placedBy;
+    },
+    appliedLines: () =>
+      app.applied.map((c) => ({ index: c.index, mode: c.mode, a: c.a.segment, b: c.b.segment })),
+    hintVisible: () => app.ui.hintVisible(),
     worldToClient(x, y) {
       const rect = app.canvas.getBoundingClientRect();
       const [sx, sy] = app.camera.toScreen(x, y);

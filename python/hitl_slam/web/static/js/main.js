@@ -8,7 +8,7 @@ import { Camera } from "./camera.js";
 import { PendingPair, sigmaForScale } from "./correction.js";
 import { installHooks } from "./hooks.js";
 import { attachInput } from "./interaction.js";
-import { followPoses, overlay } from "./overlay.js";
+import { overlay } from "./overlay.js";
 import { Ui } from "./ui.js";
 import { MapView } from "./view.js";
 
@@ -20,10 +20,10 @@ class App {
     this.view = new MapView(this.canvas);
     this.state = null; // latest State
     this.version = -1; // state version whose map is on screen
-    this.points = null; // Float32Array (P*2), world coordinates of the map on screen
-    this.offsets = null;
+    this.scans = null; // {points: robot-frame Float32Array (P*2), offsets: Int32Array (N+1)}, once
+    this.owner = null; // Int32Array (P): each point's pose
     this.poses = null; // Float32Array (N*3) of the map on screen
-    this.tracked = new Map(); // history index -> {a, b}: applied P_a / P_b on the current map
+    this.applied = []; // State.lines shown: the corrections in effect with their solved lines
     this.correcting = false;
     this.selectedMode = null; // mode button for plain drags
     this.pending = new PendingPair();
@@ -35,7 +35,7 @@ class App {
     this.loading = null; // the running map fetch (one at a time)
     this.wanted = -1; // newest state version whose map should be fetched
     this.measure = null; // {t0, t1, solveMs, version} of the apply awaiting its first frame
-    this.lastLoad = null; // {version, fetchMs, uploadMs, bytes} of the latest map fetched
+    this.lastLoad = null; // {version, fetchMs, uploadMs, bytes} of the latest poses fetched
     this.labels = []; // "1a"/"1b" labels of the applied corrections
     this.lastRedraw = null;
     this.frameScheduled = false;
@@ -53,7 +53,12 @@ class App {
     this.resize();
     attachInput(this, this.canvas);
     this.bindButtons();
-    const state = await api.getState();
+    const [state, scans] = await Promise.all([api.getState(), api.getScans()]);
+    this.scans = scans;
+    const owner = new Int32Array(scans.points.length >>> 1);
+    for (let p = 0; p + 1 < scans.offsets.length; p++) owner.fill(p, scans.offsets[p], scans.offsets[p + 1]);
+    this.owner = owner;
+    this.view.setScans(scans.points, scans.offsets);
     this.ui.setName(state.name, state.session);
     this.setState(state);
     await this.ensureMap(state.version);
@@ -95,7 +100,8 @@ class App {
     }
     this.view.setConstrained(flags);
     this.constrained = flags;
-    this.refreshLines();
+    this.ui.setHint(s);
+    this.followState();
     if (s.version > this.version) {
       // Not every change moves the map (a rejection, the inconsistency arriving): the server's
       // map_version says when the poses last changed; without it, a lone rejection is known
@@ -106,14 +112,33 @@ class App {
           : s.version === this.version + 1 && s.last && s.last.kind === "reject";
       if (unmoved && !this.loading) {
         this.version = s.version;
-        this.requestRender();
+        this.followState();
       } else {
         this.ensureMap(s.version).catch((e) => this.error(e));
       }
     }
   }
 
-  /** Fetches and uploads the map arrays until the map on screen is at least `version`. */
+  /**
+   * Shows the latest state's solved lines once the poses on screen are those they were solved
+   * with (the state's map_version), so lines and points always move together.
+   */
+  followState() {
+    const s = this.state;
+    if (!s || !this.poses) return;
+    const mapVersion = typeof s.map_version === "number" ? s.map_version : s.version;
+    if (mapVersion <= this.version && this.applied !== s.lines) {
+      this.applied = s.lines || [];
+      this.refreshLines();
+    } else {
+      this.requestRender();
+    }
+  }
+
+  /**
+   * Fetches the poses until the map on screen is at least `version`: the scans are on the page
+   * already (robot frame), so a new map is N*3 floats, and the view places the points.
+   */
   ensureMap(version) {
     this.wanted = Math.max(this.wanted, version);
     if (this.loading) return this.loading;
@@ -121,28 +146,24 @@ class App {
       try {
         while (this.version < this.wanted) {
           const t0 = performance.now();
-          const arrays = await api.getMapArrays(this.offsets === null);
+          const fetched = await api.getPoses();
           const t1 = performance.now();
-          if (!arrays.consistent) continue; // points and poses straddled a change
-          if (arrays.offsets) this.offsets = arrays.offsets;
-          this.points = arrays.points;
-          this.tracked = followPoses(this.tracked, this.state, this.poses, arrays.poses);
-          this.poses = arrays.poses;
-          this.view.setMap(arrays.points, arrays.poses, this.constrained || new Uint8Array(0), this.offsets);
+          this.poses = fetched.poses;
+          this.view.setPoses(fetched.poses, this.constrained || new Uint8Array(0));
           const t2 = performance.now();
-          this.version = Math.max(this.version, arrays.version);
-          this.wanted = Math.max(this.wanted, arrays.version);
+          this.version = Math.max(this.version, fetched.version);
+          this.wanted = Math.max(this.wanted, fetched.version);
           this.lastLoad = {
-            version: arrays.version,
+            version: fetched.version,
             fetchMs: t1 - t0,
             uploadMs: t2 - t1,
-            bytes: arrays.points.byteLength + arrays.poses.byteLength,
+            bytes: fetched.poses.byteLength,
           };
           if (!this.fitted) {
             this.fit();
             this.fitted = true;
           }
-          this.refreshLines();
+          this.followState();
           // A preview shown over the old map would be stale: ask again on the new one.
           if (this.pending.complete && this.preview) this.requestPreview();
           else this.refreshHighlights();
@@ -240,20 +261,24 @@ class App {
     this.refreshHighlights();
   }
 
-  /** S_a / S_b of the preview, gathered from the points on screen (global point indices). */
+  /** S_a / S_b of the preview (global point indices), placed by the poses on screen. */
   refreshHighlights() {
     const p = this.preview;
     let a = new Float32Array(0);
     let b = new Float32Array(0);
-    if (p && p.accepted && this.points) {
+    if (p && p.accepted && this.scans && this.poses) {
+      const { points } = this.scans;
+      const poses = this.poses;
       const gather = (b64) => {
         const idx = api.decodeIndices(b64);
         const out = new Float32Array(2 * idx.length);
         let k = 0;
         for (const i of idx) {
-          if (2 * i + 1 >= this.points.length) continue;
-          out[k++] = this.points[2 * i];
-          out[k++] = this.points[2 * i + 1];
+          if (2 * i + 1 >= points.length) continue;
+          const q = 3 * this.owner[i];
+          const [c, s] = [Math.cos(poses[q + 2]), Math.sin(poses[q + 2])];
+          out[k++] = poses[q] + c * points[2 * i] - s * points[2 * i + 1];
+          out[k++] = poses[q + 1] + s * points[2 * i] + c * points[2 * i + 1];
         }
         return out.subarray(0, k);
       };
@@ -268,7 +293,7 @@ class App {
   /** Rebuilds the overlay (lines and labels) from the corrections, the pair and the preview. */
   refreshLines() {
     const { under, over, labels } = overlay({
-      tracked: this.tracked,
+      applied: this.applied,
       pending: this.pending.segments,
       pendingComplete: this.pending.complete,
       pendingMode: this.pending.mode,
@@ -440,7 +465,7 @@ class App {
     this.lastFrameTs = ts;
     const [w, h] = this.view.resize();
     this.camera.resize(w, h);
-    if (this.points === null) return;
+    if (this.poses === null) return;
     const drawMs = this.view.render(this.camera);
     this.ui.setScale(this.camera.scale);
     this.ui.setLabels(

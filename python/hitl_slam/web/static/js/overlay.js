@@ -1,7 +1,7 @@
-// What is drawn over the laser points besides the poses: the applied corrections' fitted lines
-// P_a / P_b (dashed, numbered "1a", "1b", ...), the segments of the pending pair and the one
-// being drawn (wide, translucent), and the preview's fitted lines. Also keeps the applied
-// corrections' lines on their features as the map moves. Pure functions over plain data.
+// What is drawn over the laser points besides the poses: the applied corrections' solved lines
+// P_a / P_b (dashed, numbered "1a", "1b", ...) exactly as the server's State.lines gives them,
+// the segments of the pending pair and the one being drawn (wide, translucent), and the
+// preview's fitted lines. Pure functions over plain data.
 
 import { COLOURS } from "./view.js";
 
@@ -12,11 +12,12 @@ const FITTED_WIDTH = 2;
 const withAlpha = (c, a) => [c[0], c[1], c[2], a];
 
 /**
- * The overlay for view.setLines and the labels: {under, over, labels}. `tracked` maps a history
- * index to its current {a, b} lines; `pending` holds the drawn segments (0 to 2); `draft` is
- * {mode, segment} while dragging; `preview` the /api/interpret answer or null.
+ * The overlay for view.setLines and the labels: {under, over, labels}. `applied` is the State's
+ * `lines` (each correction in effect with its solved lines a and b and their segments);
+ * `pending` holds the drawn segments (0 to 2); `draft` is {mode, segment} while dragging;
+ * `preview` the /api/interpret answer or null.
  */
-export function overlay({ tracked, pending, pendingComplete, pendingMode, draft, preview }) {
+export function overlay({ applied, pending, pendingComplete, pendingMode, draft, preview }) {
   const under = [];
   const over = [];
   const labels = [];
@@ -29,11 +30,12 @@ export function overlay({ tracked, pending, pendingComplete, pendingMode, draft,
     under.push({ p0: seg[0], p1: seg[1], colour: c, width: DRAWN_WIDTH, dashed: false });
   };
   let k = 0;
-  for (const [, t] of tracked) {
+  for (const c of applied) {
     k++;
-    fitted(t.a, COLOURS.fittedA);
-    fitted(t.b, COLOURS.fittedB);
-    labels.push({ text: `${k}a`, side: "a", at: t.a }, { text: `${k}b`, side: "b", at: t.b });
+    const [a, b] = [c.a.segment, c.b.segment];
+    fitted(a, COLOURS.fittedA);
+    fitted(b, COLOURS.fittedB);
+    labels.push({ text: `${k}a`, side: "a", at: a }, { text: `${k}b`, side: "b", at: b });
   }
   const [a, b] = pending;
   drawn(a, COLOURS.a);
@@ -47,36 +49,4 @@ export function overlay({ tracked, pending, pendingComplete, pendingMode, draft,
     fitted(preview.line_b, COLOURS.fittedB);
   }
   return { under, over, labels };
-}
-
-/**
- * The applied corrections' lines on the new map (a new Map, history index -> {a, b}).
- *
- * The server gives P_a / P_b where they were fitted, on the map before the correction; S_a and
- * S_b move with their poses, so each line moves rigidly with the middle pose of X_a (or X_b)
- * from `previousPoses` (the map on screen) to `poses` (the new one). Lines of corrections
- * applied before the page loaded are shown where they were fitted.
- */
-export function followPoses(tracked, state, previousPoses, poses) {
-  const history = state ? state.history : [];
-  const same = previousPoses && previousPoses.length === poses.length;
-  const move = (seg, i) => {
-    if (!same || i === undefined || 3 * i + 2 >= poses.length) return seg;
-    const [ox, oy, ot] = [previousPoses[3 * i], previousPoses[3 * i + 1], previousPoses[3 * i + 2]];
-    const [nx, ny, nt] = [poses[3 * i], poses[3 * i + 1], poses[3 * i + 2]];
-    const c = Math.cos(nt - ot);
-    const s = Math.sin(nt - ot);
-    return seg.map(([x, y]) => [nx + c * (x - ox) - s * (y - oy), ny + s * (x - ox) + c * (y - oy)]);
-  };
-  const middle = (xs) => (xs && xs.length ? xs[xs.length >> 1] : undefined);
-  const next = new Map();
-  for (const h of history) {
-    if (h.status !== "applied" || !h.line_a || !h.line_b) continue;
-    const old = tracked.get(h.index);
-    next.set(h.index, {
-      a: move(old ? old.a : h.line_a, middle(h.x_a)),
-      b: move(old ? old.b : h.line_b, middle(h.x_b)),
-    });
-  }
-  return next;
 }

@@ -1,5 +1,6 @@
 // The GLSL programs of the map view (GLSL ES 1.00, so they run on WebGL 1 and 2) and the helper
 // that compiles them. World positions go to clip space as clip = (p - u_center) * u_scale;
+// laser points arrive in their robot's frame and are placed by their pose (SCAN_VS);
 // colours are written premultiplied (blend ONE, ONE_MINUS_SRC_ALPHA).
 
 export const POINT_VS = `
@@ -9,6 +10,27 @@ uniform vec2 u_scale;
 uniform float u_size;
 void main() {
   gl_Position = vec4((a_pos - u_center) * u_scale, 0.0, 1.0);
+  gl_PointSize = u_size;
+}`;
+
+// Laser points placed by their pose on the GPU: each vertex is a robot-frame point and the index
+// of its pose; the poses are a float texture of (x, y, cos theta, sin theta) texels, u_poses_size
+// texels wide and high, re-uploaded (a few kilobytes) when the map changes. The points' buffers
+// are uploaded once.
+export const SCAN_VS = `
+attribute vec2 a_local;
+attribute float a_pose;
+uniform highp sampler2D u_poses;
+uniform vec2 u_poses_size;
+uniform vec2 u_center;
+uniform vec2 u_scale;
+uniform float u_size;
+void main() {
+  float row = floor((a_pose + 0.5) / u_poses_size.x);
+  float col = a_pose - row * u_poses_size.x;
+  vec4 p = texture2D(u_poses, vec2((col + 0.5) / u_poses_size.x, (row + 0.5) / u_poses_size.y));
+  vec2 w = p.xy + vec2(p.z * a_local.x - p.w * a_local.y, p.w * a_local.x + p.z * a_local.y);
+  gl_Position = vec4((w - u_center) * u_scale, 0.0, 1.0);
   gl_PointSize = u_size;
 }`;
 

@@ -1,9 +1,10 @@
-// Laser points drawn on the CPU: each point adds one to the count of the pixel it falls on
-// (a one-byte-per-pixel image, saturating at 255), the counts go to the GPU as a texture, and a
-// shader turns counts into orange of the same opacity as blended GL points. On a software
-// WebGL (SwiftShader, llvmpipe: machines without a GPU, remote desktops, headless CI) this is
-// some 20 times faster than GL_POINTS, whose per-vertex cost there is about 0.6 us; with a GPU
-// the view draws GL_POINTS instead (view.js picks).
+// Laser points drawn on the CPU: each point, placed by its pose's frame (the points are kept in
+// the robot frame, so a new map only brings new poses), adds one to the count of the pixel it
+// falls on (a one-byte-per-pixel image, saturating at 255), the counts go to the GPU as a
+// texture, and a shader turns counts into orange of the same opacity as blended GL points. On a
+// software WebGL (SwiftShader, llvmpipe: machines without a GPU, remote desktops, headless CI)
+// this is some 20 times faster than GL_POINTS, whose per-vertex cost there is about 0.6 us; with
+// a GPU the view draws GL_POINTS instead (view.js picks).
 
 import { SPLAT_FS, SPLAT_VS, compile } from "./shaders.js";
 
@@ -15,9 +16,10 @@ export class PointSplatter {
     this.program = compile(gl, SPLAT_VS, SPLAT_FS);
     this.texture = gl.createTexture();
     this.quads = gl.createBuffer();
-    this.points = new Float32Array(0);
-    this.boxes = null; // (N, 4) per-scan bounding boxes, when the offsets are known
-    this.offsets = null;
+    this.points = new Float32Array(0); // robot-frame x, y pairs, pose by pose
+    this.offsets = null; // (N + 1) per-pose offsets into the points
+    this.reach = null; // (N) each scan's farthest point from its robot [m]
+    this.frames = null; // (N, 4) each pose's x, y, cos theta, sin theta
     this.width = 0;
     this.height = 0;
     this.lastCpuMs = 0;
@@ -33,33 +35,41 @@ export class PointSplatter {
   }
 
   /**
-   * A new map version: its points and, when known, `offsets` (pose i's points are
-   * points[2 offsets[i] .. 2 offsets[i + 1]]), from which each scan's bounding box is kept so a
-   * zoomed-in view skips the scans it cannot see.
+   * The map's scans, once: every point in its robot's frame (x, y pairs) and `offsets` (pose i's
+   * points are points[2 offsets[i] .. 2 offsets[i + 1]]). Each scan's reach (its farthest point
+   * from the robot) is kept so that a view skips the scans it cannot see.
    */
-  setPoints(points, offsets = null) {
-    this.points = points;
-    this.boxes = null;
-    const n = offsets ? offsets.length - 1 : 0;
-    if (n <= 0 || offsets[n] * 2 !== points.length) return;
-    const boxes = new Float32Array(4 * n);
-    for (let p = 0; p < n; p++) {
-      let x0 = Infinity;
-      let y0 = Infinity;
-      let x1 = -Infinity;
-      let y1 = -Infinity;
-      for (let i = 2 * offsets[p]; i < 2 * offsets[p + 1]; i += 2) {
-        const x = points[i];
-        const y = points[i + 1];
-        if (x < x0) x0 = x;
-        if (x > x1) x1 = x;
-        if (y < y0) y0 = y;
-        if (y > y1) y1 = y;
-      }
-      boxes.set([x0, y0, x1, y1], 4 * p);
+  setScans(points, offsets) {
+    const n = offsets.length - 1;
+    if (n < 0 || offsets[n] * 2 !== points.length) {
+      throw new Error(`the scans do not match their offsets (${points.length / 2} points, ${offsets[n]} indexed)`);
     }
-    this.boxes = boxes;
+    this.points = points;
     this.offsets = offsets;
+    const reach = new Float32Array(n);
+    for (let p = 0; p < n; p++) {
+      let r2 = 0;
+      for (let i = 2 * offsets[p]; i < 2 * offsets[p + 1]; i += 2) {
+        const d = points[i] * points[i] + points[i + 1] * points[i + 1];
+        if (d > r2) r2 = d;
+      }
+      reach[p] = Math.sqrt(r2);
+    }
+    this.reach = reach;
+    this.frames = null;
+  }
+
+  /** A new map version: the poses (x, y, theta per pose), whose frames place the scans. */
+  setPoses(poses) {
+    const n = poses.length / 3;
+    const frames = new Float64Array(4 * n); // x, y, cos, sin
+    for (let p = 0; p < n; p++) {
+      frames[4 * p] = poses[3 * p];
+      frames[4 * p + 1] = poses[3 * p + 1];
+      frames[4 * p + 2] = Math.cos(poses[3 * p + 2]);
+      frames[4 * p + 3] = Math.sin(poses[3 * p + 2]);
+    }
+    this.frames = frames;
   }
 
   _resize(w, h) {
@@ -82,56 +92,56 @@ export class PointSplatter {
 
   /** Counts the points per pixel for the view (centre, device px per metre, point size). */
   _splat(cx, cy, k, size) {
-    const { width: w, height: h, counts, points, boxes, offsets } = this;
+    const { width: w, height: h, counts, frames, reach, offsets } = this;
     counts.fill(0);
-    if (!boxes) {
-      this._count(0, points.length, cx, cy, k, size);
-    } else {
-      // Only the scans whose bounding box meets the view (with a point's margin).
+    if (frames && offsets && frames.length === 4 * (offsets.length - 1)) {
+      // Only the scans whose reach around their pose meets the view (with a point's margin).
       const margin = size / k;
       const vx0 = cx - w / 2 / k - margin;
       const vx1 = cx + w / 2 / k + margin;
       const vy0 = cy - h / 2 / k - margin;
       const vy1 = cy + h / 2 / k + margin;
       const n = offsets.length - 1;
-      let p = 0;
-      while (p < n) {
-        const q = 4 * p;
-        if (boxes[q] > vx1 || boxes[q + 2] < vx0 || boxes[q + 1] > vy1 || boxes[q + 3] < vy0) {
-          p++;
-          continue;
-        }
-        let end = p + 1; // a run of visible scans is one loop
-        while (end < n) {
-          const r = 4 * end;
-          if (boxes[r] > vx1 || boxes[r + 2] < vx0 || boxes[r + 1] > vy1 || boxes[r + 3] < vy0) break;
-          end++;
-        }
-        this._count(2 * offsets[p], 2 * offsets[end], cx, cy, k, size);
-        p = end;
+      for (let p = 0; p < n; p++) {
+        if (offsets[p] === offsets[p + 1]) continue;
+        const x = frames[4 * p];
+        const y = frames[4 * p + 1];
+        const r = reach[p];
+        if (x - r > vx1 || x + r < vx0 || y - r > vy1 || y + r < vy0) continue;
+        this._count(2 * offsets[p], 2 * offsets[p + 1], frames, 4 * p, cx, cy, k, size);
       }
     }
     this._markTiles();
   }
 
-  /** Adds points[from .. to) (x, y pairs) to the counts. */
-  _count(from, to, cx, cy, k, size) {
+  /**
+   * Adds points[from .. to) (robot-frame x, y pairs of one scan, whose frame is at
+   * frames[f .. f + 4): x, y, cos, sin) to the counts.
+   */
+  _count(from, to, frames, f, cx, cy, k, size) {
     const { width: w, height: h, stride, counts, points } = this;
-    const hw = w / 2;
-    const hh = h / 2;
+    // The scan's frame and the view as one affine map from robot metres to device pixels.
+    const a = frames[f + 2] * k;
+    const b = frames[f + 3] * k;
+    const ex = (frames[f] - cx) * k + w / 2;
+    const ey = (frames[f + 1] - cy) * k + h / 2;
     if (size <= 1) {
       // The hot loop (a pass over every visible point each frame): no writes but the count.
       for (let i = from; i < to; i += 2) {
-        const x = (points[i] - cx) * k + hw;
-        const y = (points[i + 1] - cy) * k + hh;
+        const lx = points[i];
+        const ly = points[i + 1];
+        const x = a * lx - b * ly + ex;
+        const y = b * lx + a * ly + ey;
         if (x >= 0 && x < w && y >= 0 && y < h) counts[(y | 0) * stride + (x | 0)]++;
       }
       return;
     }
     const back = (size - 1) / 2;
     for (let i = from; i < to; i += 2) {
-      const x0 = Math.floor((points[i] - cx) * k + hw - back);
-      const y0 = Math.floor((points[i + 1] - cy) * k + hh - back);
+      const lx = points[i];
+      const ly = points[i + 1];
+      const x0 = Math.floor(a * lx - b * ly + ex - back);
+      const y0 = Math.floor(b * lx + a * ly + ey - back);
       if (x0 + size <= 0 || x0 >= w || y0 + size <= 0 || y0 >= h) continue;
       const x1 = Math.min(w, x0 + size);
       const y1 = Math.min(h, y0 + size);

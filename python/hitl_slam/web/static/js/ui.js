@@ -94,6 +94,19 @@ export class Ui {
     }
   }
 
+  /**
+   * The first-use hint (how to start a correction) shows until a correction has been made in
+   * this session: while no history entry was ever applied (applied, undone or discarded).
+   */
+  setHint(s) {
+    const made = s.history.some((h) => ["applied", "undone", "discarded"].includes(h.status));
+    $("hint").hidden = made;
+  }
+
+  hintVisible() {
+    return !$("hint").hidden;
+  }
+
   setApplyReady(ready) {
     $("btn-apply").classList.toggle("ready", ready);
   }

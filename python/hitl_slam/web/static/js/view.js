@@ -5,9 +5,12 @@
 // fitted lines P_a/P_b (dashed). Each frame is timed up to a 1-pixel readPixels, which waits for
 // the GPU to finish it.
 //
-// Laser points take one of two paths (`pointsPath`): "gpu", GL_POINTS from the buffer, with a
-// real GPU; "cpu", splat.js, on a software WebGL, where GL_POINTS costs ~0.6 us a point (300 ms
-// for 500,000). The page URL's ?points=gpu|cpu overrides the choice.
+// Laser points arrive once, in their robot's frame; after a correction only the poses change.
+// They take one of two paths (`pointsPath`): "gpu", GL_POINTS placed by their pose in the vertex
+// shader (the poses are a float texture), with a real GPU; "cpu", splat.js, on a software WebGL,
+// where GL_POINTS costs ~0.6 us a point (300 ms for 500,000). The page URL's ?points=gpu|cpu
+// overrides the choice. A WebGL without float textures in the vertex shader places the points on
+// the CPU for the "gpu" path (`placedBy` says which).
 
 import { PointSplatter } from "./splat.js";
 import {
@@ -17,6 +20,7 @@ import {
   LINE_VS,
   POINT_FS,
   POINT_VS,
+  SCAN_VS,
   compile,
 } from "./shaders.js";
 
@@ -51,6 +55,25 @@ const LINE_FLOATS = 12; // p0 (2), p1 (2), corner (2), colour (4), style (2)
 const ARROW_FLOATS = 6; // pose (x, y, theta, in-a-correction flag), corner (2)
 const SOFTWARE = /SwiftShader|llvmpipe|softpipe|Software|Basic Render/i;
 
+/**
+ * World positions (x, y float32 pairs) of the robot-frame `points` of each scan (pose i's are
+ * points[2 offsets[i] .. 2 offsets[i + 1]]) under `poses` (N*3).
+ */
+export function placePoints(points, offsets, poses) {
+  const out = new Float32Array(points.length);
+  for (let p = 0; p + 1 < offsets.length; p++) {
+    const x = poses[3 * p];
+    const y = poses[3 * p + 1];
+    const c = Math.cos(poses[3 * p + 2]);
+    const s = Math.sin(poses[3 * p + 2]);
+    for (let i = 2 * offsets[p]; i < 2 * offsets[p + 1]; i += 2) {
+      out[i] = x + c * points[i] - s * points[i + 1];
+      out[i + 1] = y + s * points[i] + c * points[i + 1];
+    }
+  }
+  return out;
+}
+
 /** The renderer string of this browser's WebGL, from a throwaway context. */
 function probeRenderer() {
   const gl = document.createElement("canvas").getContext("webgl");
@@ -74,21 +97,31 @@ export class MapView {
     this.gl = canvas.getContext("webgl2", options) || canvas.getContext("webgl", options);
     const gl = this.gl;
     if (!gl) throw new Error("this browser has no WebGL; hitl-slam's map view needs it");
+    // Float textures readable by the vertex shader: WebGL 2, or WebGL 1 with OES_texture_float.
+    this.webgl2 = typeof WebGL2RenderingContext !== "undefined" && gl instanceof WebGL2RenderingContext;
+    const floats = this.webgl2 || gl.getExtension("OES_texture_float") !== null;
+    this.placedBy = floats && gl.getParameter(gl.MAX_VERTEX_TEXTURE_IMAGE_UNITS) > 0 ? "shader" : "cpu";
     this.programs = {
       points: compile(gl, POINT_VS, POINT_FS),
+      scans: this.placedBy === "shader" ? compile(gl, SCAN_VS, POINT_FS) : null,
       arrows: compile(gl, ARROW_VS, COLOUR_FS),
       lines: compile(gl, LINE_VS, LINE_FS),
     };
     this.splatter = new PointSplatter(gl);
     this.buffers = {
-      points: gl.createBuffer(),
+      points: gl.createBuffer(), // world points (when placed on the CPU)
+      local: gl.createBuffer(), // robot-frame points (when placed by the shader)
+      owner: gl.createBuffer(), // each point's pose index, as a float
       poses: gl.createBuffer(),
       under: gl.createBuffer(),
       over: gl.createBuffer(),
       highlightA: gl.createBuffer(),
       highlightB: gl.createBuffer(),
     };
+    this.poseTexture = gl.createTexture();
+    this.poseTextureSize = [1, 1];
     this.numPoints = 0;
+    this.scans = null; // {points, offsets} in the robot frame, from setScans
     this.poses = new Float32Array(0); // (N, 3) of the current map
     this.constrained = new Uint8Array(0);
     this.poseSpacing = 0.1; // median distance between consecutive poses [m]
@@ -120,18 +153,36 @@ export class MapView {
   }
 
   /**
-   * Uploads a map version: points (P*2) and poses (N*3) float32, which poses are constrained,
-   * and the points' per-pose offsets (N+1) when known.
+   * The map's scans, once: every point in its robot's frame (P*2 float32) and the per-pose
+   * offsets (N+1 int32: pose i's points are points[2 offsets[i] .. 2 offsets[i + 1]]).
    */
-  setMap(points, poses, constrained, offsets = null) {
+  setScans(points, offsets) {
     const gl = this.gl;
-    if (this.pointsPath === "gpu") {
-      gl.bindBuffer(gl.ARRAY_BUFFER, this.buffers.points);
-      gl.bufferData(gl.ARRAY_BUFFER, points, gl.STATIC_DRAW);
-    } else {
-      this.splatter.setPoints(points, offsets);
-    }
+    this.scans = { points, offsets };
     this.numPoints = points.length >>> 1;
+    if (this.pointsPath === "cpu") {
+      this.splatter.setScans(points, offsets);
+    } else if (this.placedBy === "shader") {
+      const owner = new Float32Array(this.numPoints);
+      for (let p = 0; p + 1 < offsets.length; p++) owner.fill(p, offsets[p], offsets[p + 1]);
+      gl.bindBuffer(gl.ARRAY_BUFFER, this.buffers.local);
+      gl.bufferData(gl.ARRAY_BUFFER, points, gl.STATIC_DRAW);
+      gl.bindBuffer(gl.ARRAY_BUFFER, this.buffers.owner);
+      gl.bufferData(gl.ARRAY_BUFFER, owner, gl.STATIC_DRAW);
+    }
+  }
+
+  /** A map version: its poses (N*3 float32) and which are constrained; the scans follow them. */
+  setPoses(poses, constrained) {
+    const gl = this.gl;
+    if (this.pointsPath === "cpu") {
+      this.splatter.setPoses(poses);
+    } else if (this.placedBy === "shader") {
+      this._uploadPoseTexture(poses);
+    } else if (this.scans) {
+      gl.bindBuffer(gl.ARRAY_BUFFER, this.buffers.points);
+      gl.bufferData(gl.ARRAY_BUFFER, placePoints(this.scans.points, this.scans.offsets, poses), gl.STATIC_DRAW);
+    }
     this.poses = poses;
     this.constrained = constrained;
     const n = poses.length / 3;
@@ -142,6 +193,37 @@ export class MapView {
     steps.sort((p, q) => p - q);
     this.poseSpacing = steps.length ? Math.max(steps[steps.length >> 1], 1e-3) : 0.1;
     this.poseStep = 0;
+  }
+
+  /** The poses as (x, y, cos, sin) float texels, rows of up to 2048 (texture unit 1). */
+  _uploadPoseTexture(poses) {
+    const gl = this.gl;
+    const n = Math.max(1, poses.length / 3);
+    const width = Math.min(n, 2048);
+    const height = Math.ceil(n / width);
+    const texels = new Float32Array(4 * width * height);
+    for (let i = 0; 3 * i < poses.length; i++) {
+      const t = poses[3 * i + 2];
+      texels[4 * i] = poses[3 * i];
+      texels[4 * i + 1] = poses[3 * i + 1];
+      texels[4 * i + 2] = Math.cos(t);
+      texels[4 * i + 3] = Math.sin(t);
+    }
+    gl.activeTexture(gl.TEXTURE1);
+    gl.bindTexture(gl.TEXTURE_2D, this.poseTexture);
+    for (const [p, v] of [
+      [gl.TEXTURE_MIN_FILTER, gl.NEAREST],
+      [gl.TEXTURE_MAG_FILTER, gl.NEAREST],
+      [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE],
+      [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE],
+    ]) {
+      gl.texParameteri(gl.TEXTURE_2D, p, v);
+    }
+    gl.pixelStorei(gl.UNPACK_ALIGNMENT, 4);
+    const internal = this.webgl2 ? gl.RGBA32F : gl.RGBA;
+    gl.texImage2D(gl.TEXTURE_2D, 0, internal, width, height, 0, gl.RGBA, gl.FLOAT, texels);
+    gl.activeTexture(gl.TEXTURE0);
+    this.poseTextureSize = [width, height];
   }
 
   /** Which poses are in a correction changed (history), not the poses themselves. */
@@ -276,6 +358,21 @@ export class MapView {
       this.splatter.draw(camera.cx, camera.cy, k, pointPx, COLOURS.observation, ...viewport);
       this.splats.push(this.splatter.lastCpuMs);
       if (this.splats.length > 600) this.splats.splice(0, this.splats.length - 600);
+    } else if (this.numPoints > 0 && this.placedBy === "shader") {
+      const sc = this.programs.scans;
+      this._uniforms(sc, center, scale, viewport);
+      this._attrib(sc, "a_local", this.buffers.local, 2);
+      this._attrib(sc, "a_pose", this.buffers.owner, 1);
+      gl.activeTexture(gl.TEXTURE1);
+      gl.bindTexture(gl.TEXTURE_2D, this.poseTexture);
+      gl.activeTexture(gl.TEXTURE0);
+      gl.uniform1i(sc.uniform.u_poses, 1);
+      gl.uniform2fv(sc.uniform.u_poses_size, this.poseTextureSize);
+      gl.uniform1f(sc.uniform.u_size, pointPx);
+      gl.uniform1f(sc.uniform.u_round, 0);
+      gl.uniform4fv(sc.uniform.u_color, COLOURS.observation);
+      gl.drawArrays(gl.POINTS, 0, this.numPoints);
+      this._release();
     } else if (this.numPoints > 0) {
       this._uniforms(pts, center, scale, viewport);
       this._attrib(pts, "a_pos", this.buffers.points, 2);

@@ -1,0 +1,85 @@
+"""The JSON documents of the web API (shapes in :mod:`hitl_slam.web.schemas`) built from the
+session's objects: a Preview of an interpretation, a history item, the ``last`` change.
+"""
+
+from __future__ import annotations
+
+import base64
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hitl_slam.corrections import Interpretation
+from hitl_slam.map import Map
+from hitl_slam.session import HistoryEntry
+
+__all__ = ["history_item", "last_change", "preview", "segment_json"]
+
+
+def segment_json(segment: Any) -> list[list[float]]:
+    return [
+        [float(segment[0][0]), float(segment[0][1])],
+        [float(segment[1][0]), float(segment[1][1])],
+    ]
+
+
+def _indices_json(values: NDArray[np.int64]) -> list[int]:
+    out: list[int] = values.astype(np.int64).tolist()
+    return out
+
+
+def _global(map: Map, rows: NDArray[np.int64]) -> str:
+    index = map.point_rows(rows)
+    return base64.b64encode(index.astype("<u4").tobytes()).decode("ascii")
+
+
+def preview(map: Map, h: Interpretation) -> dict[str, Any]:
+    """The accepted Preview of ``h``: lines where EM fitted them, X_a / X_b, and S_a / S_b as
+    base64 uint32 LE global point indices."""
+    return {
+        "accepted": True,
+        "mode": h.mode.value,
+        "line_a": segment_json(h.line_a),
+        "line_b": segment_json(h.line_b),
+        "x_a": _indices_json(h.x_a),
+        "x_b": _indices_json(h.x_b),
+        "notes": list(h.notes),
+        "s_a": _global(map, h.s_a),
+        "s_b": _global(map, h.s_b),
+    }
+
+
+def history_item(entry: HistoryEntry) -> dict[str, Any]:
+    h = entry.interpretation
+    return {
+        "index": entry.index,
+        "mode": entry.mode.value,
+        "status": entry.status.value,
+        "reason": entry.reason,
+        "line_a": None if h is None else segment_json(h.line_a),
+        "line_b": None if h is None else segment_json(h.line_b),
+        "drawn": entry.drawn.to_json(),
+        "x_a": [] if h is None else _indices_json(h.x_a),
+        "x_b": [] if h is None else _indices_json(h.x_b),
+    }
+
+
+def last_change(
+    kind: str,
+    time_ms: float,
+    *,
+    cost: float = 0.0,
+    initial_cost: float = 0.0,
+    iterations: int = 0,
+    reason: str | None = None,
+) -> dict[str, Any]:
+    """The State's ``last``: what the latest change was and what it cost."""
+    return {
+        "kind": kind,
+        "time_ms": time_ms,
+        "cost": cost,
+        "initial_cost": initial_cost,
+        "iterations": iterations,
+        "reason": reason,
+    }
