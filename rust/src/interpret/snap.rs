@@ -140,9 +140,14 @@ pub fn snap(
         ];
         hist.fill(0);
         for &q in &local {
-            let b = ((dot(n, q) + reach) * inv).floor();
-            if b >= 0.0 && (b as usize) < bins {
-                hist[b as usize] += 1;
+            // For v >= 0 the cast truncates, which is floor (and avoids a libm call in the
+            // hottest loop of interpretation); below 0 the point is outside the histogram.
+            let v = (dot(n, q) + reach) * inv;
+            if v >= 0.0 {
+                let b = v as usize;
+                if b < bins {
+                    hist[b] += 1;
+                }
             }
         }
         // Support of the line at bin i's centre: bins i-1..=i+1 (+-1.5 sigma).
