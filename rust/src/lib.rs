@@ -10,7 +10,7 @@
 //!
 //! Module map: [`se2`] (pose math), [`geometry`] (lines: TLS fit, distances), [`values`] (variables), [`factors`] (residuals),
 //! [`graph`] (the factor graph and its gauge), [`init`] (initial guesses: spanning tree,
-//! chordal relaxation), [`solver`] (pattern, LM/GN, marginals),
+//! chordal relaxation), [`solver`] (sparsity pattern, assembly, linear solves, LM/GN/dogleg, marginals),
 //! [`correction`] (explicit correction and back-propagation), [`frontend`] (scan matching),
 //! `python` (the only place that knows about Python; behind the `python` feature).
 //!

@@ -1,13 +1,19 @@
-//! Sparse nonlinear least squares: the normal-equation pattern with its cached symbolic
-//! Cholesky analysis (`pattern`), the low-rank term of wide factors solved by Woodbury
-//! (`woodbury`), robust kernels per factor class (`robust`), the algorithms (`gauss_newton`,
-//! `levenberg_marquardt`, `dogleg`) over a shared problem with honest convergence tests
-//! (`problem`), the entry point (`optimize`), the report, and marginal covariances.
+//! Sparse nonlinear least squares: the normal-equation pattern with its ordering and cached
+//! symbolic Cholesky analysis (`pattern`), the Hessian and gradient accumulated into it
+//! (`assembly`), the numeric factorization with the damped and undamped solves
+//! (`linear_solve`), the low-rank term of wide factors solved by Woodbury (`woodbury`), the
+//! system in natural variable order for cross-checks (`natural_system`), robust kernels per
+//! factor class (`robust`), the algorithms (`gauss_newton`, `levenberg_marquardt`, `dogleg`)
+//! over a shared problem with honest convergence tests (`problem`), the entry point
+//! (`optimize`), the report, and marginal covariances.
 
+mod assembly;
 mod dogleg;
 mod gauss_newton;
 mod levenberg_marquardt;
+mod linear_solve;
 mod marginals;
+mod natural_system;
 mod optimize;
 mod ordering;
 mod params;
@@ -15,6 +21,8 @@ mod pattern;
 mod problem;
 mod report;
 mod robust;
+#[cfg(test)]
+mod test_problems;
 mod woodbury;
 
 pub use marginals::marginal_covariances;

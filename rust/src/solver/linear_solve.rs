@@ -1,0 +1,393 @@
+//! The linear solves on an assembled system: the numeric Cholesky factorization on the pattern's
+//! cached symbolic analysis, the damped solve `(H + mu D) delta = -g` of every iteration, and
+//! the undamped solves for columns of `H^-1` (marginals). With wide factors the sparse factor is
+//! of `A = H_s (+ mu D)` alone, and the low-rank term `U U^T` joins every solve by the Woodbury
+//! identity (`woodbury`), refined against `A`.
+
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::sparse::linalg::cholesky::LltRef;
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use faer::{Conj, MatMut, Par, Side, Spec};
+
+use super::pattern::SparsityPattern;
+use super::woodbury::Cholesky;
+use crate::error::{HitlError, Result};
+
+/// `y = A x` and `z = |A| |x|` (for the backward error of a refinement step) for a symmetric A
+/// stored as its upper triangle in CSC.
+fn mul_sym_upper(
+    col_ptr: &[usize],
+    row_idx: &[usize],
+    vals: &[f64],
+    x: &[f64],
+    y: &mut [f64],
+    z: &mut [f64],
+) {
+    y.fill(0.0);
+    z.fill(0.0);
+    for c in 0..x.len() {
+        for k in col_ptr[c]..col_ptr[c + 1] {
+            let r = row_idx[k];
+            y[r] += vals[k] * x[c];
+            z[r] += (vals[k] * x[c]).abs();
+            if r != c {
+                y[c] += vals[k] * x[r];
+                z[c] += (vals[k] * x[r]).abs();
+            }
+        }
+    }
+}
+
+/// `A^-1 x` in place for the columns of `x` (n rows each), through A's numeric factor.
+fn solve_in_place(llt: LltRef<'_, usize, f64>, mem: &mut MemBuffer, x: &mut [f64], n: usize) {
+    let rhs = MatMut::from_column_major_slice_mut(x, n, x.len() / n);
+    llt.solve_in_place_with_conj(Conj::No, rhs, Par::Seq, MemStack::new(mem));
+}
+
+impl SparsityPattern {
+    /// Diagonal entry k of the full `H = H_s + U U^T`.
+    #[inline]
+    fn hessian_diagonal(&self, k: usize) -> f64 {
+        self.h[self.col_ptr[k + 1] - 1] + self.wide.diagonal(k)
+    }
+
+    /// Solves `(H + mu D) delta = -g` where `D = diag(H)` clamped to `[d_min, d_max]`
+    /// (`diagonal = true`, Marquardt's scaling) or the identity. `mu = 0` is Gauss-Newton.
+    /// Returns `Ok(false)` when the damped matrix is not numerically positive definite.
+    /// With wide factors, `H = H_s + U U^T` and the sparse factor is of `A = H_s + mu D` alone
+    /// (Woodbury, see the module docs); the solution is that of the full system either way.
+    pub fn solve_damped(&mut self, mu: f64, diagonal: bool, delta: &mut [f64]) -> Result<bool> {
+        self.damped.copy_from_slice(&self.h);
+        if mu > 0.0 {
+            for k in 0..self.n {
+                let d = if diagonal {
+                    self.hessian_diagonal(k).clamp(1e-6, 1e32)
+                } else {
+                    1.0
+                };
+                let p = self.col_ptr[k + 1] - 1;
+                self.damped[p] += mu * d;
+            }
+        }
+        for (x, g) in delta.iter_mut().zip(&self.g) {
+            *x = -g;
+        }
+        let n = self.n;
+        if !self.factorize(true) {
+            return Ok(false);
+        }
+        let llt = LltRef::new(&self.symbolic, &self.l_values);
+        if self.wide.rank() == 0 {
+            solve_in_place(llt, &mut self.mem, delta, n);
+        } else {
+            let l = Cholesky {
+                symbolic: &self.symbolic,
+                l_values: &self.l_values,
+            };
+            if !self.wide.prepare(l)? {
+                return Ok(false);
+            }
+            let (col_ptr, row_idx, damped) = (&self.col_ptr, &self.row_idx, &self.damped);
+            let a_times = |x: &[f64], y: &mut [f64], z: &mut [f64]| {
+                mul_sym_upper(col_ptr, row_idx, damped, x, y, z)
+            };
+            self.wide.solve_refined(l, a_times, delta);
+        }
+        Ok(delta.iter().all(|v| v.is_finite()))
+    }
+
+    /// Numeric Cholesky of the damped (`damped`) or the undamped sparse part into `l_values`,
+    /// on the cached symbolic analysis; false when it is not positive definite.
+    fn factorize(&mut self, damped: bool) -> bool {
+        let n = self.n;
+        let sym = SymbolicSparseColMatRef::new_checked(n, n, &self.col_ptr, None, &self.row_idx);
+        let values = if damped { &self.damped } else { &self.h };
+        self.symbolic
+            .factorize_numeric_llt::<f64>(
+                &mut self.l_values,
+                SparseColMatRef::new(sym, values),
+                Side::Upper,
+                LltRegularization::default(),
+                Par::Seq,
+                MemStack::new(&mut self.mem),
+                Spec::default(),
+            )
+            .is_ok()
+    }
+
+    /// `d^T D d` for the damping matrix D of [`Self::solve_damped`].
+    pub fn damping_quadratic(&self, delta: &[f64], diagonal: bool) -> f64 {
+        delta
+            .iter()
+            .enumerate()
+            .map(|(k, d)| {
+                let dk = if diagonal {
+                    self.hessian_diagonal(k).clamp(1e-6, 1e32)
+                } else {
+                    1.0
+                };
+                dk * d * d
+            })
+            .sum()
+    }
+
+    /// Factorizes the undamped `H` and solves for `H^-1` columns of the given scalar offsets
+    /// (marginal covariances). `cols` is `n x k` column-major, overwritten with the solutions.
+    /// With wide factors, A is the undamped `H_s` and each column is a refined Woodbury solve.
+    pub fn solve_undamped_columns(&mut self, cols: &mut [f64], k: usize) -> Result<()> {
+        let n = self.n;
+        let singular = || {
+            HitlError::Solver(
+                "the information matrix is singular at this solution; marginals are undefined (is every pose constrained?)".into(),
+            )
+        };
+        if !self.factorize(false) {
+            return Err(singular());
+        }
+        if self.wide.rank() == 0 {
+            let llt = LltRef::new(&self.symbolic, &self.l_values);
+            // The workspace was sized for 3 right-hand sides; solve in chunks of 3.
+            for chunk in cols.chunks_mut(3 * n) {
+                solve_in_place(llt, &mut self.mem, chunk, n);
+            }
+        } else {
+            let l = Cholesky {
+                symbolic: &self.symbolic,
+                l_values: &self.l_values,
+            };
+            if !self.wide.prepare(l)? {
+                return Err(singular());
+            }
+            let (col_ptr, row_idx, h) = (&self.col_ptr, &self.row_idx, &self.h);
+            let a_times = |x: &[f64], y: &mut [f64], z: &mut [f64]| {
+                mul_sym_upper(col_ptr, row_idx, h, x, y, z)
+            };
+            for col in cols.chunks_mut(n) {
+                self.wide.solve_refined(l, a_times, col);
+            }
+        }
+        debug_assert!(cols.len() == k * n);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solver::test_problems::{corrected, dense_hessian, ring, Relations};
+    use crate::values::Key;
+    use faer::sparse::linalg::cholesky::SymbolicCholeskyRaw;
+
+    fn mul_upper(p: &SparsityPattern, vals: &[f64], x: &[f64]) -> Vec<f64> {
+        let mut y = vec![0.0; p.n];
+        for c in 0..p.n {
+            for k in p.col_ptr[c]..p.col_ptr[c + 1] {
+                let r = p.row_idx[k];
+                y[r] += vals[k] * x[c];
+                if r != c {
+                    y[c] += vals[k] * x[r];
+                }
+            }
+        }
+        y
+    }
+
+    #[test]
+    fn damped_solve_solves_the_system() {
+        for &n in &[5usize, 60, 400] {
+            let (mut g, values) = ring(n);
+            let (factors, p) = g.parts().unwrap();
+            p.linearize(factors, &values, &[]);
+            for &(mu, diag) in &[(0.0, false), (1e-3, true), (10.0, false)] {
+                let mut delta = vec![0.0; p.n];
+                assert!(p.solve_damped(mu, diag, &mut delta).unwrap());
+                let hd = mul_upper(p, &p.damped, &delta);
+                let err = hd
+                    .iter()
+                    .zip(&p.g)
+                    .map(|(a, b)| (a + b).abs())
+                    .fold(0.0, f64::max);
+                let scale = p.g.iter().map(|v| v.abs()).fold(0.0, f64::max);
+                assert!(
+                    err <= 1e-9 * scale,
+                    "n {n} mu {mu}: residual {err} (scale {scale})"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn woodbury_solve_equals_a_dense_solve_of_the_full_system() {
+        for n in [50usize, 300] {
+            let (mut g, values) = corrected(n, Relations::Wide, false);
+            let (factors, p) = g.parts().unwrap();
+            p.linearize(factors, &values, &[]);
+            assert_eq!(p.wide.rank(), 5);
+            let h = dense_hessian(p);
+            let g_vec = nalgebra::DVector::from_column_slice(&p.g);
+            for &(mu, diag) in &[(0.0, false), (1e-5, false), (1e-3, true), (10.0, false)] {
+                let mut delta = vec![0.0; p.n];
+                assert!(p.solve_damped(mu, diag, &mut delta).unwrap());
+                let mut a = h.clone();
+                for k in 0..p.n {
+                    a[(k, k)] += mu
+                        * if diag {
+                            h[(k, k)].clamp(1e-6, 1e32)
+                        } else {
+                            1.0
+                        };
+                }
+                let expect = a.clone().cholesky().unwrap().solve(&(-&g_vec));
+                let got = nalgebra::DVector::from_column_slice(&delta);
+                let rel = (&got - &expect).norm() / expect.norm();
+                assert!(
+                    rel < 1e-9,
+                    "n {n} mu {mu} diag {diag}: relative error {rel:e}"
+                );
+                // The LM gain ratio relies on (H + mu D) delta = -g holding exactly.
+                let res = (&a * &got + &g_vec).amax() / g_vec.amax();
+                assert!(res < 1e-9, "n {n} mu {mu}: residual {res:e}");
+                let quad = p.damping_quadratic(&delta, diag);
+                let expect_quad: f64 = (0..p.n)
+                    .map(|k| {
+                        let d = if diag {
+                            h[(k, k)].clamp(1e-6, 1e32)
+                        } else {
+                            1.0
+                        };
+                        d * delta[k] * delta[k]
+                    })
+                    .sum();
+                assert!((quad - expect_quad).abs() <= 1e-12 * expect_quad.abs());
+            }
+        }
+    }
+
+    #[test]
+    fn woodbury_on_a_supernodal_factor_matches_the_sparse_solve() {
+        // 1100 poses: over SUPERNODAL_MIN_DIM unknowns, so the reach-limited supernodal forward
+        // solve runs; the dense-coupling graph is the exact reference.
+        let (mut gw, values) = corrected(1100, Relations::Wide, false);
+        let (mut gn, _) = corrected(1100, Relations::Narrow, false);
+        let (fw, pw) = gw.parts().unwrap();
+        let (fnarrow, pn) = gn.parts().unwrap();
+        assert!(matches!(
+            pw.symbolic.raw(),
+            SymbolicCholeskyRaw::Supernodal(_)
+        ));
+        pw.linearize(fw, &values, &[]);
+        pn.linearize(fnarrow, &values, &[]);
+        for &(mu, diag) in &[(0.0, false), (1e-5, false), (1e-2, true)] {
+            let mut dw = vec![0.0; pw.n];
+            let mut dn = vec![0.0; pn.n];
+            assert!(pw.solve_damped(mu, diag, &mut dw).unwrap());
+            assert!(pn.solve_damped(mu, diag, &mut dn).unwrap());
+            // Same unknowns, possibly in another order: compare variable by variable.
+            let (mut err, mut norm) = (0.0f64, 0.0f64);
+            for &key in pn.block_keys() {
+                let (ow, on) = (pw.offset_of(key).unwrap(), pn.offset_of(key).unwrap());
+                for a in 0..key.dim() {
+                    err = err.max((dw[ow + a] - dn[on + a]).abs());
+                    norm = norm.max(dn[on + a].abs());
+                }
+            }
+            // Residuals of both in the narrow graph's exact system: the refinement must bring
+            // the Woodbury solve to the rounding level of a direct one.
+            let mut dwn = vec![0.0; pn.n];
+            for &key in pn.block_keys() {
+                let (ow, on) = (pw.offset_of(key).unwrap(), pn.offset_of(key).unwrap());
+                dwn[on..on + key.dim()].copy_from_slice(&dw[ow..ow + key.dim()]);
+            }
+            let gmax = pn.g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (name, d) in [("wide", &dwn), ("narrow", &dn)] {
+                let hd = mul_upper(pn, &pn.damped, d);
+                let res = hd
+                    .iter()
+                    .zip(&pn.g)
+                    .map(|(a, b)| (a + b).abs())
+                    .fold(0.0, f64::max);
+                assert!(res <= 1e-13 * gmax, "{name} mu {mu}: residual {res:e}");
+            }
+            assert!(err <= 1e-9 * norm, "mu {mu}: {err:e} vs {norm:e}");
+        }
+        // The relations' columns reach only part of the factor.
+        let reached = pw.wide.reached_rows();
+        assert!(
+            reached > 0 && reached < 5 * pw.n / 2,
+            "{reached} of 5 x {}",
+            pw.n
+        );
+    }
+
+    #[test]
+    fn marginals_with_wide_factors_equal_the_dense_inverse() {
+        let (mut g, values) = corrected(80, Relations::Wide, false);
+        let keys = [
+            Key::Pose(3),
+            Key::Pose(77),
+            Key::Pose(41),
+            Key::Line(0),
+            Key::Line(3),
+            Key::Pose(0),
+        ];
+        let cov = crate::solver::marginal_covariances(&mut g, &values, &keys).unwrap();
+        let (factors, p) = g.parts().unwrap();
+        p.linearize(factors, &values, &[]);
+        let inv = dense_hessian(p).cholesky().unwrap().inverse();
+        for (key, block) in keys.iter().zip(&cov) {
+            let d = key.dim();
+            match p.offset_of(*key) {
+                None => assert!(block.iter().all(|&v| v == 0.0)),
+                Some(o) => {
+                    for a in 0..d {
+                        for b in 0..d {
+                            let e = inv[(o + a, o + b)];
+                            let scale = inv[(o + a, o + a)].abs().max(inv[(o + b, o + b)].abs());
+                            assert!(
+                                (block[a * d + b] - e).abs() <= 1e-9 * scale,
+                                "{key:?} ({a}, {b}): {} vs {e}",
+                                block[a * d + b]
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn solves_with_wide_factors_equal_the_sparse_ones() {
+        use crate::solver::{optimize, Method, SolverParams};
+        for method in [Method::LevenbergMarquardt, Method::GaussNewton] {
+            for diagonal_damping in [false, true] {
+                let params = SolverParams {
+                    method,
+                    diagonal_damping,
+                    relative_tolerance: 1e-12,
+                    absolute_tolerance: 1e-12,
+                    ..SolverParams::default()
+                };
+                let (mut gw, mut vw) = corrected(120, Relations::Wide, false);
+                let (mut gn, mut vn) = corrected(120, Relations::Narrow, false);
+                let rw = optimize(&mut gw, &mut vw, &params).unwrap();
+                let rn = optimize(&mut gn, &mut vn, &params).unwrap();
+                assert!(rw.final_chi2 < 0.5 * rw.initial_chi2);
+                assert!(
+                    (rw.final_chi2 - rn.final_chi2).abs() <= 1e-9 * rn.final_chi2,
+                    "{method:?}: chi2 {} vs {}",
+                    rw.final_chi2,
+                    rn.final_chi2
+                );
+                assert!(rw.nnz_factor < rn.nnz_factor);
+                for (a, b) in vw.poses.iter().zip(&vn.poses) {
+                    assert!((a.x - b.x).abs() < 1e-9 && (a.y - b.y).abs() < 1e-9);
+                    assert!((a.theta - b.theta).abs() < 1e-9);
+                }
+                for (a, b) in vw.lines.iter().zip(&vn.lines) {
+                    assert!((a.phi - b.phi).abs() < 1e-9 && (a.rho - b.rho).abs() < 1e-9);
+                }
+            }
+        }
+    }
+}
