@@ -849,9 +849,9 @@ def test_export_dispatches_on_extension_and_leaves_no_temporary_files(tmp_path: 
         "m.yaml",
     ]
     assert read_covars(tmp_path / "m.covars").num_points == room.num_points
-    path = tmp_path / "m.png"
+    path = tmp_path / "m.bmp"
     message = error_of(export, room, room.poses, path)
-    assert_error(message, path, None, "'.png'", ".covars, .g2o, .txt, .pgm")
+    assert_error(message, path, None, "'.bmp'", ".covars, .g2o, .txt, .pgm, .png, .svg")
     assert not path.exists()
 
 

@@ -566,7 +566,7 @@ def test_export_formats(
     assert [s.drawn for s in steps] == [drawings[0]]  # type: ignore[union-attr]
     (folder / "sub").mkdir()
     assert client.post("/api/export", json={"path": "sub/x.g2o"}).json()["files"] == ["sub/x.g2o"]
-    r = client.post("/api/export", json={"path": "x.png"})
+    r = client.post("/api/export", json={"path": "x.bmp"})
     assert r.status_code == 400
     assert ".g2o" in r.json()["detail"]
     assert client.post("/api/export", json={"path": "missing/x.g2o"}).status_code == 400

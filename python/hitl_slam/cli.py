@@ -1,12 +1,18 @@
 """The ``hitl-slam`` command line: argument parsing, progress, tables, exit codes.
 
-The only module that prints. Exit codes: 0 success, 2 bad input (one-line reason on stderr),
-1 a solver failure, 3 (``solve``) the solve did not converge (the best estimate is still written).
+The only module that prints. Exit codes: 0 success, 2 bad input or an output that cannot be
+written (one-line reason on stderr; then no output was written), 1 a solver failure, 3
+(``solve``) the solve did not converge (the best estimate is still written). A command's outputs
+appear together or not at all (:func:`hitl_slam.io.atomic.atomic_outputs`), and an output that
+is one of its inputs (the same file, also through a link) is refused unless ``--force``.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextvars
+import logging
+import os
 import sys
 import threading
 import time
@@ -22,6 +28,7 @@ from hitl_slam.extras import require
 if TYPE_CHECKING:
     from hitl_slam.map import Map
     from hitl_slam.metrics import Inconsistency
+    from hitl_slam.session import Session
 
 T = TypeVar("T")
 
@@ -90,10 +97,12 @@ an undo with nothing to undo and a redo with nothing to redo are rejected. Witho
 the run stops at the first one with exit code 2 and writes nothing; with --keep-going they are
 skipped and listed, and the rest still apply (exit code 0 once OUT is written).
 
-OUT's extension picks its format (.covars, .g2o, .txt TUM, .pgm + .yaml occupancy grid).
---session also keeps the whole run as a session file (a new file; an existing one is never
-overwritten) that `hitl-slam serve` or `hitl-slam export` can open. "moved" counts the poses a
-step moved by more than 1 mm or 1 mrad.
+OUT's extension picks its format (.covars, .g2o, .txt TUM, .pgm + .yaml occupancy grid, .png
+or .svg figure). --session also keeps the whole run as a session file (a new file; an existing
+one is never overwritten) that `hitl-slam serve` or `hitl-slam export` can open. OUT and the
+session file are written together or not at all; OUT may not be MAP or C.jsonl (the same file,
+also through a link) unless --force. "moved" counts the poses a step moved by more than 1 mm or
+1 mrad.
 """
 
 _EXPORT_EPILOG = """\
@@ -102,10 +111,12 @@ examples:
   hitl-slam export run.hitl -o run.jsonl         # its applied corrections, replayable
   hitl-slam export run.clf.gz -o run.pgm         # occupancy grid (+ run.yaml for map_server)
   hitl-slam export map.covars -o map.txt         # trajectory, TUM: t x y z qx qy qz qw
+  hitl-slam export run.hitl -o run.png           # a picture of the map (.png or .svg)
 
 MAP_OR_SESSION is a .covars file, a CARMEN log (.clf/.log, optionally .gz/.bz2) or a session
-(.hitl). OUT's extension picks the format: .covars, .g2o, .txt, .pgm, or .jsonl (corrections;
-only from a session, whose file is read and never changed).
+(.hitl). OUT's extension picks the format: .covars, .g2o, .txt, .pgm, .png or .svg (a figure,
+needs the plot extra), or .jsonl (corrections; only from a session, whose file is read and never
+changed). OUT may not be the input (the same file, also through a link) unless --force.
 """
 
 _METRICS_EPILOG = """\
@@ -139,7 +150,9 @@ def _with_progress(label: str, quiet: bool, work: Callable[[], T]) -> T:
         except BaseException as exc:  # re-raised in the caller's thread
             error.append(exc)
 
-    thread = threading.Thread(target=run, daemon=True)
+    # The worker runs in this thread's context, so an atomic_outputs() group reaches it.
+    context = contextvars.copy_context()
+    thread = threading.Thread(target=context.run, args=(run,), daemon=True)
     thread.start()
     with tqdm(desc=label, total=None, unit="", leave=False, file=sys.stderr) as bar:
         while thread.is_alive():
@@ -175,6 +188,83 @@ def _add_max_range(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_force(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="write the output even when it is one of the input files (replacing that input)",
+    )
+
+
+def _outputs_of(out: Path) -> list[Path]:
+    """The files writing ``out`` creates: a .pgm brings its .yaml."""
+    return [out, out.with_suffix(".yaml")] if out.suffix.lower() == ".pgm" else [out]
+
+
+def _refuse_overwriting_inputs(
+    outputs: Sequence[Path], inputs: Sequence[str | Path | None], force: bool
+) -> None:
+    """An InputError when an output is an existing input file (the same file, by name, symbolic
+    link or hard link), unless ``force``."""
+    if force:
+        return
+    for out in outputs:
+        for source in inputs:
+            if source is None:
+                continue
+            try:
+                same = os.path.samefile(out, source)
+            except OSError:  # one of them does not exist (yet): nothing to overwrite
+                continue
+            if same:
+                also = "" if str(out) == str(source) else f" as the input {source}"
+                raise InputError(
+                    f"{out}: is the same file{also}; writing it would replace the input: "
+                    "give another output name, or pass --force to overwrite the input"
+                )
+
+
+_MAP_KINDS = {
+    ".clf": "a CARMEN log",
+    ".log": "a CARMEN log",
+    ".covars": "a .covars map",
+    ".hitl": "a session",
+}
+_CARMEN_WORDS = (b"PARAM", b"ODOM", b"FLASER", b"RLASER", b"ROBOTLASER1", b"RAWLASER", b"TRUEPOS")
+
+
+def _map_kind(path: Path) -> str | None:
+    """What kind of map (not pose graph) ``path`` names by its extension, or None."""
+    suffixes = [x.lower() for x in path.suffixes]
+    if suffixes and suffixes[-1] in (".gz", ".bz2"):
+        suffixes.pop()
+    return _MAP_KINDS.get(suffixes[-1]) if suffixes else None
+
+
+def _looks_like_carmen(path: Path) -> bool:
+    """Whether the first data line of the (uncompressed) file starts with a CARMEN keyword."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(65536)
+    except OSError:
+        return False
+    for line in head.splitlines():
+        words = line.split()
+        if words and not words[0].startswith(b"#"):
+            return words[0] in _CARMEN_WORDS
+    return False
+
+
+def _not_a_pose_graph(path: Path, kind: str) -> InputError:
+    stem = path.name.split(".")[0] or "map"
+    return InputError(
+        f"{path}: {kind} (poses and laser scans) is a map, not a pose graph; `hitl-slam solve` "
+        f"reads .g2o / .graph pose graphs. Correct the map with `hitl-slam correct {path} "
+        f"--corrections C.jsonl -o OUT` or `hitl-slam serve {path}`, or write its pose graph "
+        f"with `hitl-slam export {path} -o {stem}.g2o` and solve that"
+    )
+
+
 def _cmd_solve(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -184,9 +274,21 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     out = Path(args.output)
     if out.suffix.lower() not in (".g2o", ".graph"):
         raise InputError(f"{out}: unsupported output extension {out.suffix!r}; use .g2o or .graph")
+    source = Path(args.graph)
+    kind = _map_kind(source)
+    if kind is not None:
+        raise _not_a_pose_graph(source, kind)
+    _refuse_overwriting_inputs([out], [source], args.force)
     robust = robust_pairs(",".join(args.robust)) if args.robust else []
     t0 = time.perf_counter()
-    graph, load = _with_progress("loading", args.quiet, lambda: load_graph_with_report(args.graph))
+    try:
+        graph, load = _with_progress(
+            "loading", args.quiet, lambda: load_graph_with_report(args.graph)
+        )
+    except InputError:
+        if _looks_like_carmen(source):
+            raise _not_a_pose_graph(source, "a CARMEN log") from None
+        raise
     t_load = time.perf_counter() - t0
     method = Method(args.method)
     poses, report = _with_progress(
@@ -243,14 +345,16 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     import numpy as np
 
     from hitl_slam.io import save_graph
-    from hitl_slam.io.atomic import atomic_write_text
+    from hitl_slam.io.atomic import atomic_outputs, atomic_write_text
     from hitl_slam.sim.synthetic import manhattan_world
 
     out = Path(args.output)
     graph, truth = manhattan_world(args.poses, seed=args.seed)
-    save_graph(graph, graph.poses, out)
     truth_path = out.with_suffix(".truth.txt")
-    atomic_write_text(truth_path, "".join(f"{x!r} {y!r} {t!r}\n" for x, y, t in truth.tolist()))
+    with atomic_outputs():  # both files or neither
+        save_graph(graph, graph.poses, out)
+        text = "".join(f"{x!r} {y!r} {t!r}\n" for x, y, t in truth.tolist())
+        atomic_write_text(truth_path, text)
     err = np.hypot(*(graph.poses[:, :2] - truth[:, :2]).T)
     print(
         f"wrote {out}: Manhattan world, {graph.num_poses} poses, {graph.num_edges} edges "
@@ -278,6 +382,7 @@ def _cmd_correct(args: argparse.Namespace) -> int:
 
     out = Path(args.output)
     _check_map_output(out)
+    _refuse_overwriting_inputs(_outputs_of(out), [args.map, args.corrections], args.force)
     session_path = None if args.session is None else Path(args.session)
     if session_path is not None:
         if session_path.suffix.lower() != ".hitl":
@@ -336,9 +441,7 @@ def _cmd_correct(args: argparse.Namespace) -> int:
             moved, _ = moved_poses(before, session.poses)
             if not args.quiet:
                 print(f"{step.line:>5}  {name:<14} {moved:>7} {chi2} {1e3 * result.time_s:>9.2f}")
-        _with_progress("writing", args.quiet, lambda: session.save(out))
-        if session_path is not None:
-            session.write_journal(session_path)
+        _write_correct_outputs(args, session, out, session_path)
     if rejected and not args.quiet:
         print(f"rejected ({len(rejected)}):")
         for line, reason in rejected:
@@ -355,11 +458,35 @@ def _cmd_correct(args: argparse.Namespace) -> int:
     return 0
 
 
+def _write_correct_outputs(
+    args: argparse.Namespace, session: Session, out: Path, session_path: Path | None
+) -> None:
+    """OUT (and its .yaml) and the new session file, all or none: OUT is prepared, the session
+    file created, then OUT renamed into place; if that fails the session file is removed."""
+    from hitl_slam.io.atomic import atomic_outputs
+
+    created = False
+    try:
+        with atomic_outputs():
+            _with_progress("writing", args.quiet, lambda: session.save(out))
+            if session_path is not None:
+                session.write_journal(session_path)
+                created = True
+    except BaseException as exc:
+        if created and session_path is not None:
+            try:
+                os.unlink(session_path)
+            except OSError as gone:
+                exc.add_note(f"{session_path} could not be removed ({gone.strerror}): delete it")
+        raise
+
+
 def _cmd_export(args: argparse.Namespace) -> int:
 
     out = Path(args.output)
     _check_map_output(out, (".jsonl",))
     source = Path(args.input)
+    _refuse_overwriting_inputs(_outputs_of(out), [source], args.force)
     if out.suffix.lower() == ".jsonl":
         from hitl_slam.session import Session
 
@@ -392,6 +519,7 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
         raise InputError(f"{heat_path}: the heat map is written as PNG; give a .png file name")
     if heat_path is not None:
         require("plot", "hitl-slam metrics --heat-map")
+        _refuse_overwriting_inputs([heat_path], [args.map, args.relations], args.force)
     config = DEFAULT
     if args.resolution is not None:
         if not (math.isfinite(args.resolution) and args.resolution > 0):
@@ -439,6 +567,8 @@ def _write_heat_map(the_map: Map, result: Inconsistency, path: Path) -> None:
     import numpy as np
     from matplotlib.colors import LogNorm
 
+    from hitl_slam.io.atomic import atomic_write_bytes
+
     heat = np.ma.masked_less_equal(result.heat, 0.0)
     world = the_map.world_points()
     left, right, bottom, top = result.extent
@@ -466,8 +596,9 @@ def _write_heat_map(the_map: Map, result: Inconsistency, path: Path) -> None:
         fig.savefig(buffer, format="png", dpi=150, bbox_inches="tight")
     finally:
         plt.close(fig)
-    # Rendered in memory first, so a failure leaves no half-written file.
-    path.write_bytes(buffer.getvalue())
+    # Rendered in memory first, then written atomically: a failure or a kill leaves no
+    # half-written file under the name.
+    atomic_write_bytes(path, buffer.getvalue())
 
 
 _DEMO_EPILOG = """\
@@ -595,7 +726,7 @@ def _evaluate_full(args: argparse.Namespace, out: Path) -> int:
 
     from hitl_slam.evaluation import provenance
     from hitl_slam.full_evaluation import FULL_MAPS, full_report, run_full, runs_json, summary
-    from hitl_slam.io.atomic import atomic_write_text
+    from hitl_slam.io.atomic import atomic_outputs, atomic_write_text
     from hitl_slam.sim.fault_models import FAULT_MODELS
 
     maps = [m.strip() for m in args.maps.split(",")] if args.maps else list(FULL_MAPS)
@@ -630,8 +761,9 @@ def _evaluate_full(args: argparse.Namespace, out: Path) -> int:
     flags += f" --faults {args.faults}" if args.faults else ""
     text = full_report(runs, provenance(args.seed, flags, time.perf_counter() - start))
     report = out / "full.md"
-    atomic_write_text(report, text)
-    atomic_write_text(out / "full.json", runs_json(runs))
+    with atomic_outputs():  # the report and its data together
+        atomic_write_text(report, text)
+        atomic_write_text(out / "full.json", runs_json(runs))
     s = summary(runs)
     print(
         f"accepted {100 * s['accepted_share']:.2f}% of {s['drawings']:.0f} drawings, "
@@ -709,6 +841,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="A",
         help="stop when chi2 drops by less than this (default 1e-6)",
     )
+    _add_force(solve)
     solve.add_argument("-q", "--quiet", action="store_true", help="only the summary line")
     solve.set_defaults(func=_cmd_solve)
 
@@ -745,6 +878,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="skip (and list) rejected corrections instead of stopping at the first",
     )
+    _add_force(correct)
     correct.add_argument("-q", "--quiet", action="store_true", help="only the summary line")
     correct.set_defaults(func=_cmd_correct)
 
@@ -760,6 +894,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_max_range(export)
     export.add_argument("-o", "--output", required=True, metavar="OUT", help="output file")
+    _add_force(export)
     export.add_argument("-q", "--quiet", action="store_true", help="only the summary line")
     export.set_defaults(func=_cmd_export)
 
@@ -779,6 +914,7 @@ def build_parser() -> argparse.ArgumentParser:
     metrics.add_argument(
         "--resolution", type=float, metavar="M", help="grid cell size in metres (default 0.05)"
     )
+    _add_force(metrics)
     metrics.add_argument("-q", "--quiet", action="store_true", help="no progress display")
     metrics.set_defaults(func=_cmd_metrics)
 
@@ -892,9 +1028,33 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _StderrNotices(logging.Handler):
+    """Prints the notices of :mod:`hitl_slam.io.atomic` (stale temporary files removed, or not
+    removable) as ``hitl-slam: ...`` lines on the current stderr."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            print(f"hitl-slam: {_one_line(record.getMessage())}", file=sys.stderr)
+        except Exception:
+            self.handleError(record)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    notices = logging.getLogger("hitl_slam.io.atomic")
+    handler = _StderrNotices(logging.INFO)
+    level = notices.level
+    notices.addHandler(handler)
+    notices.setLevel(logging.INFO)
+    try:
+        return _run(args)
+    finally:
+        notices.removeHandler(handler)
+        notices.setLevel(level)
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         code: int = args.func(args)
     except InputError as exc:
@@ -906,6 +1066,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except HitlSlamError as exc:
         print(f"hitl-slam: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 1
+    except OSError as exc:
+        # Reading or writing a file failed outside the readers' and writers' own checks.
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"hitl-slam: error: {where}{_one_line(exc.strerror or str(exc))}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("hitl-slam: interrupted; no output was written", file=sys.stderr)
         return 130

@@ -6,10 +6,8 @@ the package root; without matplotlib importing it raises :class:`~hitl_slam.erro
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
-import secrets
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -24,7 +22,7 @@ from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import InputError
 from hitl_slam.extras import missing_extra
 from hitl_slam.geometry import principal_axes
-from hitl_slam.io.atomic import fsync_directory
+from hitl_slam.io.atomic import atomic_binary_writer
 from hitl_slam.map import Map
 
 try:
@@ -44,6 +42,7 @@ __all__ = [
     "write_before_after",
     "write_heat_map",
     "write_information_matrix",
+    "write_map",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -200,28 +199,13 @@ def _new_figure(size: tuple[float, float], dpi: float) -> Figure:
 
 
 def _save(fig: Figure, target: Path, fmt: str, dpi: float) -> Path:
-    """Render ``fig`` to a temporary file next to ``target``, then rename it over ``target``."""
-    directory, name = os.path.split(os.fspath(target))
-    while True:
-        temp = os.path.join(directory, f".{name}.{secrets.token_hex(4)}.tmp")
-        try:
-            fd = os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-            break
-        except FileExistsError:
-            continue
-    try:
-        with os.fdopen(fd, "wb") as f:
-            # No date in SVG output, so the same figure gives the same file.
-            metadata: dict[str, Any] = {"Date": None} if fmt == "svg" else {}
-            fig.savefig(f, format=fmt, dpi=dpi, metadata=metadata)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(temp, target)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(temp)
-        raise
-    fsync_directory(directory)
+    """Render ``fig`` to a temporary file next to ``target``, then rename it over ``target``
+    (:func:`hitl_slam.io.atomic.atomic_binary_writer`: an unwritable target is an
+    :class:`~hitl_slam.io.atomic.OutputError`, and no temporary file is left behind)."""
+    # No date in SVG output, so the same figure gives the same file.
+    metadata: dict[str, Any] = {"Date": None} if fmt == "svg" else {}
+    with atomic_binary_writer(target) as f:
+        fig.savefig(f, format=fmt, dpi=dpi, metadata=metadata)
     return target
 
 
@@ -438,6 +422,24 @@ def plot_map(
     if legend:
         ax.legend(handles=handles, loc="upper right", fontsize="x-small", framealpha=0.85)
     return fig
+
+
+def write_map(
+    map: Map,
+    poses: ArrayLike,
+    path: PathLike,
+    *,
+    title: str | None = None,
+    size: tuple[float, float] = (8.0, 6.0),
+    dpi: float = 150.0,
+    max_points: int = 200_000,
+) -> Path:
+    """Write the picture of ``map`` under ``poses`` (:func:`plot_map`) as a ``.png`` or ``.svg``
+    file, atomically. Returns the path written."""
+    target, fmt = _check_path(path)
+    dpi_v = _check_positive(dpi, "dpi")
+    fig = plot_map(map, poses, title=title, size=size, dpi=dpi_v, max_points=max_points)
+    return _save(fig, target, fmt, dpi_v)
 
 
 def write_before_after(

@@ -1,6 +1,6 @@
 """Writers for a map with given poses: TUM trajectories, g2o pose graphs, ROS map_server occupancy
-grids (``.pgm`` + ``.yaml``), and :func:`export`, which picks one from the file extension.
-All of them write atomically.
+grids (``.pgm`` + ``.yaml``), figures (``.png``, ``.svg``), and :func:`export`, which picks one
+from the file extension. All of them write atomically.
 """
 
 from __future__ import annotations
@@ -18,8 +18,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
+from hitl_slam.extras import require
 from hitl_slam.io import save_graph
-from hitl_slam.io.atomic import atomic_write_text, atomic_writer
+from hitl_slam.io.atomic import atomic_binary_writer, atomic_outputs, atomic_write_text
 from hitl_slam.io.covars import write_covars
 from hitl_slam.io.textfile import PathLike, input_error
 from hitl_slam.map import Map
@@ -32,6 +33,7 @@ __all__ = [
     "OccupancyGrid",
     "export",
     "occupancy_grid",
+    "write_figure",
     "write_g2o_map",
     "write_occupancy",
     "write_tum",
@@ -325,10 +327,6 @@ def write_occupancy(
     name = os.fspath(path_pgm)
     height, width = grid.image.shape
     header = f"P5\n# hitl-slam occupancy grid, {grid.resolution!r} m/cell\n{width} {height}\n255\n"
-    # atomic_writer is text-only; latin-1 maps each of the 256 byte values to one character.
-    with atomic_writer(name, encoding="latin-1") as f:
-        f.write(header)
-        f.write(grid.image.tobytes().decode("latin-1"))
     ox, oy = grid.origin
     image = os.path.basename(name)
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", image):
@@ -342,7 +340,12 @@ def write_occupancy(
         "free_thresh: 0.196\n"
         "mode: trinary\n"
     )
-    atomic_write_text(os.path.splitext(name)[0] + ".yaml", yaml)
+    # Both files or neither: a .pgm without its .yaml is no map for map_server.
+    with atomic_outputs():
+        with atomic_binary_writer(name) as f:
+            f.write(header.encode("ascii"))
+            f.write(grid.image.tobytes())
+        atomic_write_text(os.path.splitext(name)[0] + ".yaml", yaml)
     return grid
 
 
@@ -350,23 +353,43 @@ def _write_occupancy(map: Map, poses: ArrayLike, path: PathLike) -> None:
     write_occupancy(map, poses, path)
 
 
+def write_figure(map: Map, poses: ArrayLike, path: PathLike) -> None:
+    """Write the picture of the map under ``poses`` (``.png`` or ``.svg``, see
+    :func:`hitl_slam.plot.write_map`); needs the ``plot`` extra (matplotlib).
+
+    Raises:
+        MissingExtra: matplotlib is not installed (the message names the extra).
+    """
+    out = map.checked_poses(poses)
+    require("plot", f"exporting {os.path.basename(os.fspath(path))} (a figure)")
+    from hitl_slam.plot import write_map
+
+    write_map(map, out, path)
+
+
 _WRITERS: dict[str, Callable[[Map, ArrayLike, PathLike], None]] = {
     ".covars": write_covars,
     ".g2o": write_g2o_map,
     ".txt": write_tum,
     ".pgm": _write_occupancy,
+    ".png": write_figure,
+    ".svg": write_figure,
 }
 EXPORT_EXTENSIONS = tuple(_WRITERS)
-"""Extensions :func:`export` writes: ``.covars``, ``.g2o``, ``.txt`` (TUM), ``.pgm`` (+ yaml)."""
+"""Extensions :func:`export` writes: ``.covars``, ``.g2o``, ``.txt`` (TUM), ``.pgm`` (+ yaml),
+``.png`` and ``.svg`` (a figure of the map; the ``plot`` extra)."""
 
 
 def export(map: Map, poses: ArrayLike, path: PathLike) -> None:
     """Write ``map`` with ``poses`` in the format named by the extension of ``path``:
     ``.covars`` (HitL-SLAM), ``.g2o`` (pose graph), ``.txt`` (TUM trajectory), ``.pgm``
-    (occupancy grid, with its ``.yaml``).
+    (occupancy grid, with its ``.yaml``), ``.png`` / ``.svg`` (a picture of the map, as
+    :func:`hitl_slam.plot.plot_map` draws it; needs matplotlib, the ``plot`` extra).
 
     Raises:
-        InputError: any other extension (the message lists the supported ones), or bad poses.
+        InputError: any other extension (the message lists the supported ones), bad poses, or
+            an output that cannot be written (:class:`~hitl_slam.io.atomic.OutputError`).
+        MissingExtra: ``.png`` / ``.svg`` without matplotlib.
     """
     name = os.fspath(path)
     extension = os.path.splitext(name)[1].lower()
