@@ -526,15 +526,16 @@ class JsonBodyCheck:
     """Refuses a request body the routes would mis-read or could only call "an error parsing
     the body", saying what is wrong (see :func:`check_json_body`): a body that is not JSON
     (415), another charset than UTF-8 (415), bytes that are not UTF-8, nesting too deep or a
-    number too long (400), malformed JSON (422). Reads the whole body first, so it belongs
-    inside :class:`BodyLimit`; bodies that pass reach the app unchanged."""
+    number too long (400), malformed JSON (422); for every method but GET, HEAD and OPTIONS.
+    Reads the whole body first, so it belongs inside :class:`BodyLimit`; bodies that pass reach
+    the app unchanged."""
 
     def __init__(self, app: ASGIApp) -> None:
         self.app = app
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
+        if scope["type"] != "http" or scope.get("method", "GET") in _SAFE_METHODS:
+            await self.app(scope, receive, send)  # no route reads a GET's body
             return
         chunks: list[bytes] = []
         while True:
