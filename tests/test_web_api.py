@@ -40,6 +40,9 @@ with warnings.catch_warnings():
     from starlette.testclient import TestClient
 
 BASE = "http://127.0.0.1:8765"
+# What the page's own POSTs carry (js/api.js): a body-less POST without either header is refused
+# (415), as a page of another origin could send it without a preflight.
+PAGE_HEADERS = {"X-Hitl-Slam": "1"}
 EMPTY_SPACE = {"mode": "collinear", "a": [[50.0, 50.0], [52.0, 50.0]], "b": [[60, 60], [62, 60]]}
 
 
@@ -82,7 +85,7 @@ def host(room: Scenario, tmp_path: Path) -> Iterator[SessionHost]:
 
 @pytest.fixture
 def client(host: SessionHost) -> Iterator[TestClient]:
-    with TestClient(create_app(host, token=None), base_url=BASE) as c:
+    with TestClient(create_app(host, token=None), base_url=BASE, headers=PAGE_HEADERS) as c:
         yield c
 
 
@@ -333,7 +336,9 @@ def test_long_poll_returns_promptly_on_a_change_from_another_thread(
 ) -> None:
     host = SessionHost(Session.open(session_file(room, tmp_path)), poll_timeout=10.0, metrics=False)
     try:
-        with TestClient(create_app(host, token=None), base_url=BASE) as client:
+        with TestClient(
+            create_app(host, token=None), base_url=BASE, headers=PAGE_HEADERS
+        ) as client:
             version = client.get("/api/state").json()["version"]
             changer = threading.Timer(0.3, host.apply, args=(drawings[0],))
             changer.start()
@@ -355,7 +360,9 @@ def test_long_poll_returns_promptly_on_a_change_from_another_thread(
 def test_long_poll_times_out_with_the_unchanged_state(room: Scenario, tmp_path: Path) -> None:
     host = SessionHost(Session.open(session_file(room, tmp_path)), poll_timeout=0.4, metrics=False)
     try:
-        with TestClient(create_app(host, token=None), base_url=BASE) as client:
+        with TestClient(
+            create_app(host, token=None), base_url=BASE, headers=PAGE_HEADERS
+        ) as client:
             state = client.get("/api/state").json()
             t0 = time.monotonic()
             again = client.get(f"/api/state?after={state['version']}").json()
@@ -416,7 +423,10 @@ def test_inconsistency_arrives_after_each_change(
 
 def test_two_clients_stay_consistent(host: SessionHost, drawings: list[DrawnCorrection]) -> None:
     app = create_app(host, token=None)
-    with TestClient(app, base_url=BASE) as a, TestClient(app, base_url=BASE) as b:
+    with (
+        TestClient(app, base_url=BASE, headers=PAGE_HEADERS) as a,
+        TestClient(app, base_url=BASE, headers=PAGE_HEADERS) as b,
+    ):
         version = b.get("/api/state").json()["version"]
         seen: dict[str, Any] = {}
 
@@ -488,7 +498,9 @@ def test_journal_step_applies_the_corrections_file_in_order(
         journal_source=corrections.name,
     )
     try:
-        with TestClient(create_app(host, token=None), base_url=BASE) as client:
+        with TestClient(
+            create_app(host, token=None), base_url=BASE, headers=PAGE_HEADERS
+        ) as client:
             state = client.get("/api/state").json()
             assert state["journal"] == {"loaded": 4, "next": 0, "source": "fixes.jsonl"}
             first = client.post("/api/journal/step").json()
@@ -580,7 +592,7 @@ def test_reopening_the_session_gives_the_same_state(
 ) -> None:
     path = session_file(room, tmp_path)
     host = SessionHost(Session.open(path), metrics=False)
-    with TestClient(create_app(host, token=None), base_url=BASE) as client:
+    with TestClient(create_app(host, token=None), base_url=BASE, headers=PAGE_HEADERS) as client:
         for d in drawings:
             client.post("/api/corrections", json=as_json(d))
         client.post("/api/corrections", json=EMPTY_SPACE)
@@ -592,7 +604,9 @@ def test_reopening_the_session_gives_the_same_state(
 
     host = SessionHost(Session.open(path), metrics=False)
     try:
-        with TestClient(create_app(host, token=None), base_url=BASE) as client:
+        with TestClient(
+            create_app(host, token=None), base_url=BASE, headers=PAGE_HEADERS
+        ) as client:
             after = client.get("/api/state").json()
             assert [client.get(f"/api/map/{a}").content for a in ("points", "poses")] == arrays[:2]
             assert client.get("/api/map/offsets").content == arrays[2]
@@ -729,7 +743,7 @@ def test_other_requests_are_answered_while_a_correction_computes(
     session = Session.new(room.map, tmp_path / "slow.hitl", applier=slow)
     h = SessionHost(session, poll_timeout=5.0, metrics=False)
     try:
-        with TestClient(create_app(h, token=None), base_url=BASE) as c:
+        with TestClient(create_app(h, token=None), base_url=BASE, headers=PAGE_HEADERS) as c:
             before = c.get("/api/map/poses").content
             done: dict[str, Any] = {}
 

@@ -27,10 +27,12 @@ import httpx
 import numpy as np
 import pytest
 
+from hitl_slam.corrections import DrawnCorrection
 from hitl_slam.errors import InputError
 from hitl_slam.session import Session
 from hitl_slam.sim import SimulatedHuman, campus, lost_poses_room
 from hitl_slam.web import SessionHost, create_app, run_server
+from hitl_slam.web.schemas import Drawn
 from hitl_slam.web.security import BodyLimit, is_loopback
 
 with warnings.catch_warnings():
@@ -206,7 +208,11 @@ def test_every_route_needs_the_token(method: str, path: str, site: Site) -> None
         for credentials in WRONG:
             r = c.request(method, path, json=DRAWN if method == "POST" else None, **credentials)
             assert r.status_code == 403, (path, credentials)
-            assert "token" in r.json()["detail"]
+            if path == "/":  # a person at a browser gets a page saying how to get in
+                assert r.headers["content-type"] == "text/html; charset=utf-8"
+                assert "?token=" in r.text
+            else:
+                assert "token" in r.json()["detail"]
             assert "set-cookie" not in r.headers
             assert r.headers["cache-control"] == "no-store"
             assert r.headers["x-content-type-options"] == "nosniff"
@@ -236,7 +242,8 @@ def test_the_right_token_works_by_query_bearer_and_cookie(
         assert c.get("/static/probe.txt", **credentials).text == "static ok"
         assert c.get("/static/missing.js", **credentials).status_code == 404
         assert c.get("/api/state", **credentials).json()["num_poses"] == 499
-        r = c.post("/api/undo", **credentials)
+        headers = {"X-Hitl-Slam": "1", **credentials.get("headers", {})}
+        r = c.post("/api/undo", params=credentials.get("params"), headers=headers)
         assert r.status_code == 409  # authenticated; nothing to undo
 
 
@@ -687,3 +694,306 @@ def test_ctrl_c_stops_the_server_cleanly(tmp_path: Path) -> None:
         assert polled[0] < 10
     assert any("stopped; every acknowledged change" in line for line in server.lines)
     assert (tmp_path / "hitl-demo" / "lost-poses.hitl").is_file()
+
+
+# -- cross-origin requests (issue 13, finding 8) ------------------------------------------------
+
+# Every state-changing route, with a body it accepts (None: body-less).
+CHANGING: list[tuple[str, dict[str, Any] | None]] = [
+    ("/api/undo", None),
+    ("/api/redo", None),
+    ("/api/save", None),
+    ("/api/save", {"name": "stolen"}),
+    ("/api/export", {"path": "stolen.g2o"}),
+    ("/api/corrections", DRAWN),
+    ("/api/journal/step", None),
+    ("/api/interpret", DRAWN),
+]
+FOREIGN = [
+    {"Origin": "http://evil.example"},
+    {"Origin": "http://127.0.0.1:9999"},  # another server on this machine: same site, cookie sent
+    {"Origin": "https://127.0.0.1:8765"},
+    {"Origin": "http://127.0.0.1.evil.example:8765"},
+    {"Origin": "null"},
+    {"Origin": "garbage"},
+    {"Sec-Fetch-Site": "cross-site"},
+    {"Sec-Fetch-Site": "same-site"},
+    {"Origin": "http://127.0.0.1:8765", "Sec-Fetch-Site": "cross-site"},
+]
+
+
+def journal_events(session_file: Path) -> list[tuple[str, dict[str, Any]]]:
+    connection = sqlite3.connect(f"{session_file.resolve().as_uri()}?mode=ro", uri=True, timeout=5)
+    try:
+        rows = connection.execute("SELECT kind, payload FROM events ORDER BY seq").fetchall()
+    finally:
+        connection.close()
+    return [(str(kind), json.loads(payload)) for kind, payload in rows]
+
+
+def undoable_and_redoable(site: Site) -> None:
+    """Two corrections applied and one undone: undo, redo, save and correct would all change
+    something."""
+    site.host.apply(drawn_correction(DRAWN))
+    site.host.apply(drawn_correction(DRAWN))
+    site.host.undo()
+    state = site.host.state()
+    assert state["can_undo"], state["history"]
+    assert state["can_redo"], state["history"]
+
+
+def drawn_correction(body: dict[str, Any]) -> DrawnCorrection:
+    return Drawn.model_validate(body).to_correction()
+
+
+def session_fingerprint(site: Site) -> tuple[Any, ...]:
+    host = site.host
+    return (
+        host.version,
+        [(e.index, e.status.value) for e in host.session.history],
+        host.session.poses.tobytes(),
+        snapshot_tree(site.folder).keys(),
+        len(journal_events(site.folder / "room.hitl")),
+    )
+
+
+@pytest.mark.parametrize(
+    ("mode", "token", "bind", "base"),
+    [
+        ("no token", None, "127.0.0.1", BASE),
+        ("token in the cookie", TOKEN, "127.0.0.1", BASE),
+        ("token, any interface", TOKEN, "0.0.0.0", "http://lan-name.example:8765"),
+    ],
+)
+def test_cross_origin_requests_change_nothing_in_every_mode(
+    mode: str, token: str | None, bind: str, base: str, site: Site
+) -> None:
+    undoable_and_redoable(site)
+    before = session_fingerprint(site)
+    cookie = {} if token is None else {"Cookie": f"hitl_token={token}"}
+    app = create_app(site.host, token=token, bind=bind, static_dir=site.static)
+    with TestClient(app, base_url=base, raise_server_exceptions=False) as c:
+        for path, body in CHANGING:
+            for foreign in FOREIGN:
+                # As a browser sends it: JSON (after a preflight nobody grants) or not at all.
+                for kind in ({"Content-Type": "application/json"}, {}):
+                    headers = {**cookie, **foreign, **kind}
+                    content = None if body is None else json.dumps(body)
+                    r = c.post(path, content=content, headers=headers)
+                    assert r.status_code == 403, (mode, path, foreign, r.text)
+                    assert "cross-origin request refused" in r.json()["detail"]
+        assert session_fingerprint(site) == before
+        # The page's own origin (and a client that sends none, e.g. curl) is served.
+        own = {**cookie, "Origin": base, "Content-Type": "application/json"}
+        assert c.post("/api/undo", headers=own).status_code == 200
+        same = {**own, "Sec-Fetch-Site": "same-origin"}
+        assert c.post("/api/redo", headers=same).status_code == 200
+        assert c.post("/api/undo", headers={**cookie, "X-Hitl-Slam": "1"}).status_code == 200
+        assert session_fingerprint(site) != before
+
+
+@pytest.mark.parametrize(
+    "headers",
+    [
+        {},
+        {"Content-Type": "text/plain"},
+        {"Content-Type": "application/x-www-form-urlencoded"},
+        {"Content-Type": "multipart/form-data; boundary=x"},
+        {"Content-Type": "text/plain; charset=utf-8"},
+    ],
+)
+def test_a_simple_request_cannot_change_anything(headers: dict[str, str], site: Site) -> None:
+    """What a page of another origin can send without a preflight (a form, a body-less or
+    text/plain fetch), even where no Origin arrives: 415, nothing changed."""
+    undoable_and_redoable(site)
+    before = session_fingerprint(site)
+    with app_client(site, token=None) as c:
+        for path, body in CHANGING:
+            for content in (None, b"name=stolen", json.dumps(body).encode()):
+                r = c.post(path, content=content, headers=headers)
+                assert r.status_code == 415, (path, headers, content, r.text)
+                assert "Content-Type" in r.json()["detail"]
+    assert session_fingerprint(site) == before
+    # With the header the page sends, or a JSON type, or a bearer token, it works.
+    with app_client(site, token=None) as c:
+        assert c.post("/api/undo", headers={"X-Hitl-Slam": "1"}).status_code == 200
+        assert c.post("/api/redo", headers={"Content-Type": "application/json"}).status_code == 200
+    with app_client(site) as c:
+        assert c.post("/api/undo", headers={"Authorization": f"Bearer {TOKEN}"}).status_code == 200
+
+
+def test_same_origin_compares_scheme_host_and_port() -> None:
+    from hitl_slam.web.security import same_origin
+
+    for origin, host in (
+        ("http://127.0.0.1:8765", "127.0.0.1:8765"),
+        ("HTTP://LOCALHOST:8765", "localhost:8765"),
+        ("http://[::1]:8765", "[::1]:8765"),
+        ("http://example.org", "example.org:80"),
+        ("http://example.org:80", "example.org"),
+    ):
+        assert same_origin(origin, host), (origin, host)
+    for origin, host in (
+        ("http://127.0.0.1:8766", "127.0.0.1:8765"),
+        ("https://127.0.0.1:8765", "127.0.0.1:8765"),
+        ("http://localhost:8765", "127.0.0.1:8765"),
+        ("null", "127.0.0.1:8765"),
+        ("", "127.0.0.1:8765"),
+        ("http://127.0.0.1:99999", "127.0.0.1:8765"),
+        ("http://127.0.0.1:8765/path", "127.0.0.1:8765"),
+        ("http://user@127.0.0.1:8765", "127.0.0.1:8765"),
+        ("http://127.0.0.1:8765", None),
+    ):
+        assert not same_origin(origin, host), (origin, host)
+
+
+def test_the_real_no_token_server_refuses_a_foreign_origin(tmp_path: Path) -> None:
+    """The finding as probed: `serve --no-token`, a body-less POST from another page."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "hitl_slam.cli", "serve", "--demo", "--no-token", "--port", "0"],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        assert process.stdout is not None
+        base = ""
+        for line in process.stdout:
+            match = _LISTENING.search(line)
+            if match:
+                base = match.group(1).rstrip("/")
+                break
+        assert base, "no 'listening' line"
+        session_file = tmp_path / "hitl-demo" / "lost-poses.hitl"
+        events = len(journal_events(session_file))
+        for path in ("/api/undo", "/api/redo", "/api/save"):
+            r = httpx.post(base + path, headers={"Origin": "http://evil.example"}, timeout=60)
+            assert r.status_code == 403, (path, r.text)
+            r = httpx.post(base + path, headers={"Content-Type": "text/plain"}, timeout=60)
+            assert r.status_code == 415, (path, r.text)
+        assert len(journal_events(session_file)) == events
+        assert not list((tmp_path / "hitl-demo").glob("*-corrected.*"))
+        saved = httpx.post(base + "/api/save", headers={"X-Hitl-Slam": "1"}, timeout=60)
+        assert saved.status_code == 200
+        assert len(journal_events(session_file)) == events + 4
+    finally:
+        process.kill()
+        process.wait(timeout=30)
+
+
+# -- what is wrong with a body ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("content", "content_type", "status", "says"),
+    [
+        (b'{"mode": ' + b"1" * 10_000 + b"}", "application/json", 400, "number of 10000"),
+        (b"[" * 100_000 + b"]" * 100_000, "application/json", 400, "levels deep"),
+        (b'{"mode": "collinear", "a": [[1e' + b"0" * 200 + b", 0]]}", None, 400, "number of"),
+        (b'{"mode": "\xff"}', "application/json", 400, "not UTF-8 (byte 0xff at offset 10"),
+        (b"\xef\xbb", "application/json", 400, "not UTF-8"),
+        (json.dumps(DRAWN).encode("utf-16"), "application/json; charset=utf-16", 415, "utf-16"),
+        (json.dumps(DRAWN).encode("latin-1"), "application/json; charset=latin-1", 415, "latin-1"),
+        (json.dumps(DRAWN).encode("utf-16-le"), "application/json", 422, "JSON decode error"),
+        (json.dumps(DRAWN).encode(), "text/plain", 415, "Content-Type"),
+        (b'{"mode": "collinear"', "application/json", 422, "JSON decode error"),
+    ],
+)
+@pytest.mark.parametrize("path", ["/api/interpret", "/api/corrections"])
+def test_body_errors_say_what_is_wrong(
+    path: str, content: bytes, content_type: str | None, status: int, says: str, site: Site
+) -> None:
+    with app_client(site, token=None) as c:
+        headers = {"X-Hitl-Slam": "1"}
+        headers["Content-Type"] = content_type or "application/json"
+        r = c.post(path, content=content, headers=headers)
+        assert r.status_code == status, r.text[:300]
+        assert says in r.text
+        assert "There was an error parsing the body" not in r.text
+    assert site.host.session.history == []
+
+
+def test_a_body_declared_utf8_or_undeclared_is_applied(site: Site) -> None:
+    with app_client(site, token=None) as c:
+        for content_type in ("application/json; charset=UTF-8", "application/json"):
+            r = c.post(
+                "/api/interpret", content=json.dumps(DRAWN), headers={"Content-Type": content_type}
+            )
+            assert r.status_code == 200
+            assert r.json()["accepted"] is True
+
+
+@pytest.mark.parametrize(
+    "body",
+    [
+        {"mode": "collinear", "a": [[1e308, 1e308], [-1e308, -1e308]], "b": [[0, 1], [1, 1]]},
+        {"mode": "collinear", "a": [[0, 0], [1, 0]], "b": [[0, 1], [1, -1.5e9]]},
+        {**DRAWN, "sigma_h": 1e200},
+        {**DRAWN, "sigma_h": 1e308},
+    ],
+)
+def test_coordinates_that_overflow_are_refused_without_a_warning(
+    body: dict[str, Any], site: Site
+) -> None:
+    with app_client(site, token=None) as c, warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        for path in ("/api/interpret", "/api/corrections"):
+            r = c.post(path, json=body)
+            assert r.status_code == 422, r.text
+            assert "out of range" in r.text or "less than or equal to 1000" in r.text
+    assert [str(w.message) for w in seen if issubclass(w.category, RuntimeWarning)] == []
+    assert site.host.session.history == []
+
+
+def test_coordinates_up_to_the_limit_are_served(site: Site) -> None:
+    far = {"mode": "collinear", "a": [[1e9, 1e9], [1e9 - 1, 1e9]], "b": [[-1e9, 0], [-1e9, 1]]}
+    with app_client(site, token=None) as c:
+        r = c.post("/api/interpret", json=far)
+        assert r.status_code == 200
+        assert r.json()["accepted"] is False  # nothing drawn there
+        assert c.post("/api/interpret", json={**DRAWN, "sigma_h": 1e3}).status_code == 200
+
+
+# -- every file written is journaled ----------------------------------------------------------
+
+
+def test_every_save_and_export_is_journaled(client: TestClient, site: Site) -> None:
+    session_file = site.folder / "room.hitl"
+    written: list[str] = []
+    r = client.post("/api/save", json={"name": "all"})
+    assert r.status_code == 200
+    written += r.json()["files"]
+    for name in ("x.g2o", "x.txt", "x.covars", "grid.pgm", "fixes.jsonl"):
+        r = client.post("/api/export", json={"path": name})
+        assert r.status_code == 200, r.text
+        written += r.json()["files"]
+    assert [w for w in written if w.endswith((".yaml", ".jsonl"))] == [
+        "all.yaml",
+        "grid.yaml",
+        "fixes.jsonl",
+    ]
+    saves = [payload for kind, payload in journal_events(session_file) if kind == "save"]
+    assert [s["path"] for s in saves] == [str(site.folder.resolve() / w) for w in written]
+    assert [s["format"] for s in saves] == [Path(w).suffix for w in written]
+    # The session still opens (save events are no history) and serves on.
+    assert client.get("/api/state").json()["history"] == []
+
+
+# -- the page without the token ---------------------------------------------------------------
+
+
+def test_the_page_without_the_token_says_how_to_get_in(site: Site) -> None:
+    with app_client(site) as c:
+        for params in ({}, {"token": "wrong-token-0123456789"}):
+            r = c.get("/", params=params)
+            assert r.status_code == 403
+            assert r.headers["content-type"] == "text/html; charset=utf-8"
+            assert "hitl-slam serve" in r.text
+            assert "?token=" in r.text
+            assert "wrong-token" not in r.text
+            assert "set-cookie" not in r.headers
+        # The API stays JSON for programs.
+        api = c.get("/api/state")
+        assert api.status_code == 403
+        assert "token" in api.json()["detail"]

@@ -24,6 +24,8 @@ from hitl_slam.web.host import NothingToDo, OutsideFolder, SessionHost
 from hitl_slam.web.security import (
     BodyLimit,
     HostCheck,
+    JsonBodyCheck,
+    OriginCheck,
     ResponseHeaders,
     TokenCheck,
     check_token,
@@ -86,7 +88,10 @@ def create_app(
             cookie set by ``GET /?token=...``); None: no token (loopback binds only).
         max_body: [bytes] larger request bodies are refused with 413.
         bind: the address the server listens on; on a loopback address only Host headers naming
-            it or localhost, 127.0.0.1, [::1] are served (DNS-rebinding protection).
+            it or localhost, 127.0.0.1, [::1] are served (DNS-rebinding protection). On any
+            bind, a request other than GET/HEAD/OPTIONS must come from the page's own origin
+            and carry a JSON Content-Type or the X-Hitl-Slam header (see
+            :class:`~hitl_slam.web.security.OriginCheck`).
         static_dir: the front end's folder (default :data:`STATIC_DIR`).
 
     Raises:
@@ -217,9 +222,12 @@ def create_app(
 
     app.mount("/static", _Static(static), name="static")
 
-    # Outermost first: headers on everything, then Host, token, body size, routes.
+    # Outermost first: headers on everything, then Host, same origin (every mode, every bind),
+    # token, body size, JSON body checks, routes.
+    app.add_middleware(JsonBodyCheck)
     app.add_middleware(BodyLimit, max_body=max_body)
     app.add_middleware(TokenCheck, token=token)
+    app.add_middleware(OriginCheck)
     app.add_middleware(HostCheck, allowed=(bind, *_LOOPBACK_HOSTS) if loopback else None)
     app.add_middleware(ResponseHeaders)
     return app

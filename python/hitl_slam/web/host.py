@@ -289,7 +289,8 @@ class SessionHost:
 
     def save(self, name: str | None = None) -> list[str]:
         """Write the corrected map beside the session as ``name`` + ``.txt`` (TUM), ``.g2o``,
-        ``.pgm`` and ``.yaml`` (journaling each save); the file names, relative to the folder.
+        ``.pgm`` and ``.yaml``, journaling a ``save`` event for each of the four files; the file
+        names, relative to the folder.
 
         Raises:
             InputError: ``name`` is not a plain file stem ([A-Za-z0-9._-], no leading dot,
@@ -307,12 +308,14 @@ class SessionHost:
             self._check_open()
             for target in targets:
                 folder.write(self._session.save, target)
+            self._journal_output(yaml)
         return [os.path.relpath(t, where) for t in (*targets, yaml)]
 
     def export(self, relative: str) -> list[str]:
         """Write one file at ``relative`` (to the session's folder), format from its extension:
         a map format of :func:`hitl_slam.io.export.export` or ``.jsonl`` (the applied
-        corrections); the files written, relative to the folder.
+        corrections); the files written, relative to the folder. Each file written (the
+        ``.pgm``'s ``.yaml`` too) is journaled as a ``save`` event, as :meth:`save` does.
 
         Raises:
             InputError: a NUL byte, an unknown extension, or an unwritable file.
@@ -338,8 +341,11 @@ class SessionHost:
             self._check_open()
             if extension == ".jsonl":
                 folder.write(self._session.export_corrections, target)
+                self._journal_output(target)
             else:
                 folder.write(self._session.save, target)
+                if extension == ".pgm":
+                    self._journal_output(files[1])
         return [os.path.relpath(f, where) for f in files]
 
     def close(self) -> None:
@@ -364,6 +370,25 @@ class SessionHost:
     def _check_open(self) -> None:
         if self._session.closed:
             raise InputError("the session is closed; restart `hitl-slam serve`")
+
+    def _journal_output(self, path: str) -> None:
+        """Journal a ``save`` event for a file written beside one :meth:`Session.save` journaled
+        (a ``.pgm``'s ``.yaml``) or by :meth:`Session.export_corrections` (which journals
+        nothing), with the payload :meth:`Session.save` writes, so that every file the server
+        writes has its entry. Called with the operation lock held, after the file was written.
+
+        Session has no public call for this; this uses its own journaling step (journal first,
+        then the state in memory, which ignores ``save`` events) under its operation lock.
+        """
+        from hitl_slam.journal import EventKind
+
+        session = self._session
+        target = os.path.abspath(path)
+        with session._operation:
+            session._check_open()
+            session._record(
+                EventKind.SAVE, {"path": target, "format": os.path.splitext(target)[1].lower()}
+            )
 
     def _run(self, step: Step, where: str, journal_next: int | None = None) -> dict[str, Any]:
         """One step through :meth:`Session.run_step` (operation lock held); the Applied

@@ -7,11 +7,13 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, Strict
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict
 
 from hitl_slam.corrections import DrawnCorrection
 
 __all__ = [
+    "MAX_COORDINATE",
+    "MAX_SIGMA_H",
     "Applied",
     "AppliedAccepted",
     "CorrectionLines",
@@ -31,9 +33,30 @@ __all__ = [
     "State",
 ]
 
+MAX_COORDINATE = 1e9
+"""[m] Largest drawn coordinate (in absolute value): far beyond any map (UTM northings reach
+1e7), small enough that differences and squares of coordinates stay finite."""
+
+MAX_SIGMA_H = 1e3
+"""[m] Largest drawing uncertainty: beyond it the candidate search covers whole cities and the
+interpretation takes seconds to minutes (and overflows near 1e200)."""
+
+
+def _within_map_range(value: float) -> float:
+    if abs(value) > MAX_COORDINATE:
+        raise ValueError(
+            f"a coordinate of {value:g} m is out of range; draw on the map (coordinates in "
+            f"metres, at most {MAX_COORDINATE:g} in absolute value)"
+        )
+    return value
+
+
 # Strict: a coordinate must be a JSON number (a string such as "1.5" is an error, as in a
-# corrections file), and finite (Python's JSON reader accepts NaN and Infinity).
-Coordinate = Annotated[float, Strict(), Field(allow_inf_nan=False)]
+# corrections file), finite (Python's JSON reader accepts NaN and Infinity), and within
+# MAX_COORDINATE (1e308 would overflow the arithmetic).
+Coordinate = Annotated[
+    float, Strict(), Field(allow_inf_nan=False), AfterValidator(_within_map_range)
+]
 Point = tuple[Coordinate, Coordinate]
 Segment = tuple[Point, Point]
 ModeName = Literal["colocation", "collinear", "perpendicular", "parallel"]
@@ -49,7 +72,9 @@ class Drawn(_Request):
     mode: ModeName
     a: Segment
     b: Segment
-    sigma_h: Annotated[float, Strict(), Field(gt=0, allow_inf_nan=False)] | None = None
+    sigma_h: Annotated[float, Strict(), Field(gt=0, le=MAX_SIGMA_H, allow_inf_nan=False)] | None = (
+        None
+    )
 
     def to_correction(self) -> DrawnCorrection:
         return DrawnCorrection.make(self.a, self.b, self.mode, self.sigma_h)

@@ -56,6 +56,7 @@ async function request(path, init = {}) {
   const detail = await detailOf(response);
   const what = {
     403: "access denied: open the URL printed by `hitl-slam serve` (with its ?token=...)",
+    415: "request refused",
     409: "not possible now",
     413: "request too large",
     422: "the server did not understand the request",
@@ -67,8 +68,13 @@ async function getJson(path, signal) {
   return (await request(path, { headers: headers(), signal })).json();
 }
 
+// Every POST says it is JSON and carries X-Hitl-Slam: the server refuses a POST without them (or
+// from another origin), since a page of another site cannot send such a request unpreflighted.
 async function postJson(path, body) {
-  const init = { method: "POST", headers: headers({ "Content-Type": "application/json" }) };
+  const init = {
+    method: "POST",
+    headers: headers({ "Content-Type": "application/json", "X-Hitl-Slam": "1" }),
+  };
   if (body !== undefined) init.body = JSON.stringify(body);
   return (await request(path, init)).json();
 }
