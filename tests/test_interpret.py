@@ -563,3 +563,20 @@ def test_core_rejects_bad_arrays_with_input_errors() -> None:
     big[:, 2] = np.linspace(0, 1, 5)
     got = _core.segment_candidates(big[:, 2:], seg, 0.1)
     assert np.array_equal(got, np.arange(5))
+
+
+@pytest.mark.parametrize("sigma_h", [1e6, 1e200])
+def test_an_absurd_drawing_uncertainty_is_an_input_error_not_a_crash(
+    world: World, sigma_h: float
+) -> None:
+    """A sigma_h of kilometres made snapping ask for an offset histogram of 1e201 bins, and the
+    core's allocation failed ('capacity overflow', an internal error); it is a plain
+    InputError, and the map is untouched."""
+    rng = np.random.default_rng(3)
+    a = _sloppy(A_FIRST, rng, 1.5, 0.04)
+    b = _sloppy(world.displayed_segment(A_FIRST, world.first_wrong + 1), rng, -1.0, 0.04)
+    before = world.map.poses.copy()
+    drawn = DrawnCorrection.make(a, b, Mode.COLLINEAR, sigma_h=sigma_h)
+    with pytest.raises((InputError, CorrectionRejected), match="too wide|sigma_h"):
+        interpret(world.map, world.map.poses, drawn, DEFAULT)
+    assert np.array_equal(world.map.poses, before)

@@ -87,6 +87,8 @@ const MAX_TURN_CAP: f64 = 0.35;
 const MAX_TURN_FLOOR: f64 = 0.05;
 /// At most this many directions on each side of the drawn one.
 const MAX_STEPS: usize = 120;
+/// At most this many offset bins per direction (10^6 bins of 2 cm: a 20 km band).
+const MAX_BINS: f64 = 1e6;
 
 /// Snaps `seg` onto the best-scoring line of `points` near it (see the module docs); `None`
 /// when no line near the drawing has `min_support` points.
@@ -123,7 +125,17 @@ pub fn snap(
     let step = max_turn / steps as f64;
     // Offsets reach at most search band + half * sin(max_turn) from the midpoint.
     let reach = params.search_band + half * max_turn.sin() + params.sigma;
-    let bins = ((2.0 * reach / params.sigma).ceil() as usize).max(3);
+    let bins = (2.0 * reach / params.sigma).ceil();
+    // A band of metres in bins of sigma, never a request for
+    // more memory than a map holds (a sigma_h of 1e200 asked for 1e201 bins).
+    if bins.is_nan() || bins > MAX_BINS {
+        return Err(HitlError::Input(format!(
+            "the search band ({:.3e} m) is too wide for bins of {} m; give a drawing uncertainty \
+             of metres, not kilometres",
+            params.search_band, params.sigma
+        )));
+    }
+    let bins = (bins as usize).max(3);
     let mut hist = vec![0u32; bins];
     let inv = 1.0 / params.sigma;
     let var_c2 = 2.0 * params.closeness * params.closeness;
