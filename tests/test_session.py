@@ -31,7 +31,7 @@ from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.corrections_file import Apply, read_corrections
 from hitl_slam.errors import CorrectionRejected, InputError, SolverError
-from hitl_slam.journal import SCHEMA_VERSION, EventKind, Journal, read_journal
+from hitl_slam.journal import SCHEMA_VERSION, EventKind, Journal, read_journal, row_digest
 from hitl_slam.map import Map
 from hitl_slam.session import EntryStatus, Session
 
@@ -128,6 +128,25 @@ def rows(path: Path, sql: str) -> list[tuple[Any, ...]]:
         return connection.execute(sql).fetchall()
     finally:
         connection.close()
+
+
+def reseal(path: Path) -> None:
+    """Recompute every row's checksum, as if the file had been written that way (to test the
+    checks behind the checksums: a tampered value that a checksum does not give away)."""
+    connection = sqlite3.connect(path)
+    for table, key, columns in (
+        ("map", "id", ("name", "source", "anchor", "metadata")),
+        ("map_arrays", "name", ("name", "npy")),
+        ("config", "id", ("json",)),
+        ("events", "seq", ("seq", "time", "kind", "payload", "poses")),
+    ):
+        rows = connection.execute(f"SELECT {key}, {', '.join(columns)} FROM {table}").fetchall()
+        connection.executemany(
+            f"UPDATE {table} SET sha256 = ? WHERE {key} = ?",
+            [(row_digest(table, *row[1:]), row[0]) for row in rows],
+        )
+    connection.commit()
+    connection.close()
 
 
 def kinds(path: Path) -> list[str]:
@@ -633,6 +652,9 @@ def test_damaged_journal_is_reported(tmp_path: Path) -> None:
     connection.execute("UPDATE events SET poses = NULL WHERE kind = 'correction'")
     connection.commit()
     connection.close()
+    with pytest.raises(InputError, match=r"damaged \(event 3 does not match its checksum\)"):
+        Session.open(path)
+    reseal(path)
     with pytest.raises(InputError, match=r"damaged.*event 3"):
         Session.open(path)
     connection = sqlite3.connect(path)
