@@ -31,7 +31,7 @@ from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.corrections_file import Apply, read_corrections
 from hitl_slam.errors import CorrectionRejected, InputError, SolverError
-from hitl_slam.journal import SCHEMA_VERSION, EventKind, Journal, read_journal, row_digest
+from hitl_slam.journal import SCHEMA_VERSION, EventKind, Journal, read_journal
 from hitl_slam.map import Map
 from hitl_slam.session import EntryStatus, Session
 
@@ -132,8 +132,14 @@ def rows(path: Path, sql: str) -> list[tuple[Any, ...]]:
 
 def reseal(path: Path) -> None:
     """Recompute every row's checksum, as if the file had been written that way (to test the
-    checks behind the checksums: a tampered value that a checksum does not give away)."""
+    checks behind the checksums: a tampered value that a checksum does not give away). A file
+    without checksums (schema 1) is left as it is."""
     connection = sqlite3.connect(path)
+    if "sha256" not in {row[1] for row in connection.execute("PRAGMA table_info(events)")}:
+        connection.close()
+        return
+    from hitl_slam.journal import row_digest
+
     for table, key, columns in (
         ("map", "id", ("name", "source", "anchor", "metadata")),
         ("map_arrays", "name", ("name", "npy")),

@@ -580,9 +580,19 @@ class Journal:
         try:
             if not isinstance(row[2], int) or not isinstance(row[0], str):
                 raise ValueError("the map's name or anchor has the wrong type")
-            for name in ("poses", "points", "measurements", "information"):
-                if arrays[name].dtype.kind not in "fiu":
-                    raise ValueError(f"the map array {name!r} is not numeric")
+            for name, kinds in (
+                ("poses", "fiu"),
+                ("points", "fiu"),
+                ("measurements", "fiu"),
+                ("information", "fiu"),
+                ("offsets", "iu"),
+                ("edges", "iu"),
+                ("information_source", "iu"),
+                ("normals", "fiu"),
+                ("timestamps", "fiu"),
+            ):
+                if name in arrays and arrays[name].dtype.kind not in kinds:
+                    raise ValueError(f"the map array {name!r} has the wrong type")
             map = Map(
                 poses=arrays["poses"],
                 points=arrays["points"],
