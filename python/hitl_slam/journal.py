@@ -740,8 +740,14 @@ class Journal:
             seq = self._last_seq + 1
             digest = _event_digest(seq, stamp, kind.value, text, blob)
             try:
+                if self._stale:
+                    # After a failed write: a new connection, as the one kept may have been
+                    # opened read-only while the disk was (SQLite falls back to that silently).
+                    self._reconnect()
+                    self._stale = False
                 self._connection.execute("BEGIN IMMEDIATE")
             except sqlite3.Error as exc:
+                self._stale = True
                 raise self._write_error(where, exc) from None
             try:
                 last = self._connection.execute("SELECT max(seq) FROM events").fetchone()[0]
@@ -762,7 +768,12 @@ class Journal:
                     values,
                 )
                 self._connection.execute("COMMIT")
+            except InputError:  # another program's event: nothing of ours was written
+                with contextlib.suppress(sqlite3.Error):
+                    self._connection.execute("ROLLBACK")
+                raise
             except BaseException as first:
+                self._stale = True
                 written = self._settle(where, seq, digest, first)
                 if not written:
                     if isinstance(first, sqlite3.Error | OSError):
@@ -784,6 +795,21 @@ class Journal:
         return Event(seq, stamp, kind, payload, None if poses is None else np.array(poses))
 
     _upgrading = False
+    _stale = False
+
+    def _reconnect(self) -> None:
+        """Replace the connection by a new one to the file (no-op in memory)."""
+        if self._path is None:
+            return
+        with contextlib.suppress(sqlite3.Error):
+            self._connection.close()
+        connection = _connect(self._path)
+        try:
+            _configure(connection)
+        except BaseException:
+            connection.close()
+            raise
+        self._connection = connection
 
     def _upgrade(self) -> None:
         """Schema 1 -> 2 inside the caller's transaction: checksum columns, filled from the
@@ -822,20 +848,15 @@ class Journal:
         with contextlib.suppress(sqlite3.Error):
             if self._connection.in_transaction:
                 self._connection.execute("ROLLBACK")
+        try:
+            self._reconnect()
+        except sqlite3.Error as exc:
+            self._read_only = (
+                f"a write failed ({first}) and the file could not be opened again ({exc})"
+            )
+            _log.error("%s: %s", where, self._read_only)
+            return False
         connection = self._connection
-        if self._path is not None:
-            with contextlib.suppress(sqlite3.Error):
-                connection.close()
-            try:
-                connection = _connect(self._path)
-                _configure(connection)
-            except sqlite3.Error as exc:
-                self._read_only = (
-                    f"a write failed ({first}) and the file could not be opened again ({exc})"
-                )
-                _log.error("%s: %s", where, self._read_only)
-                return False
-            self._connection = connection
         try:
             version = connection.execute("PRAGMA user_version").fetchone()[0]
             column = "sha256" if version >= 2 else "NULL"
