@@ -173,12 +173,20 @@ class DamagedSession(InputError):
             damage could not be placed.
     """
 
-    def __init__(self, path: str, what: str, first_bad_seq: int | None = None) -> None:
+    def __init__(
+        self,
+        path: str,
+        what: str,
+        first_bad_seq: int | None = None,
+        *,
+        message: str | None = None,
+    ) -> None:
         self.path = path
         self.what = what
         self.first_bad_seq = first_bad_seq
         super().__init__(
-            f"{path}: the session file is damaged ({what}); "
+            message
+            or f"{path}: the session file is damaged ({what}); "
             "restore it from a copy, or start a new session from the input map"
         )
 

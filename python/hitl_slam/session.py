@@ -280,9 +280,9 @@ class _State:
             raise ValueError(f"unknown event kind {kind}")
 
     def feed(self, event: Event) -> str | None:
-        """Apply a journaled ``event``; what is wrong with it (None: applied). A failed event
-        leaves the state as it was only as far as the check before any change allows, so a
-        caller stops at the first failure and does not use this state afterwards."""
+        """Apply a journaled ``event``; return what is wrong with it (None: it applied). A failed
+        event may have changed the state half-way: the caller stops there and does not use this
+        state afterwards."""
         try:
             self.apply(event)
         except Exception as exc:  # any malformed stored value is damage
@@ -339,31 +339,39 @@ def _describe(state: _State) -> str:
     return f"the map after correction {top.index + 1} of the history ({applied} applied)"
 
 
-def _damage_report(path: str, what: str, journal: Journal, map: Map | None) -> InputError:
+def _damage_report(path: str, what: str, journal: Journal, map: Map | None) -> DamagedSession:
     """The error a user gets for a damaged file: what is wrong and the last good checkpoint,
     with the call that opens it (the intact events copied to a new file; the damaged one kept).
     ``map``: the stored input map, None when it is damaged too."""
     if map is None:
-        return InputError(
-            f"{path}: the session file is damaged ({what}); the stored input map is damaged "
-            "too, so no checkpoint in it can be trusted; restore the file from a copy, or start "
-            "a new session from the input map"
+        return DamagedSession(
+            path,
+            what,
+            message=f"{path}: the session file is damaged ({what}); the stored input map is "
+            "damaged too, so no checkpoint in it can be trusted; restore the file from a copy, "
+            "or start a new session from the input map",
         )
     state, count, _ = _intact(journal, map.poses)
     if count == 0:
-        return InputError(
-            f"{path}: the session file is damaged ({what}); no event in it is intact; restore "
-            "the file from a copy, or start a new session from the input map"
+        return DamagedSession(
+            path,
+            what,
+            1,
+            message=f"{path}: the session file is damaged ({what}); no event in it is intact; "
+            "restore the file from a copy, or start a new session from the input map",
         )
-    return InputError(
-        f"{path}: the session file is damaged ({what}); events 1 to {count} are intact; the "
-        f"last good checkpoint is {_describe(state)}: open it with "
+    return DamagedSession(
+        path,
+        what,
+        count + 1,
+        message=f"{path}: the session file is damaged ({what}); events 1 to {count} are "
+        f"intact; the last good checkpoint is {_describe(state)}: open it with "
         f"hitl_slam.Session.recover({path!r}), which copies those events to "
-        f"{_recovery_path(path)} and leaves this file as it is, or restore the file from a copy"
+        f"{_recovery_path(path)} and leaves this file as it is, or restore the file from a copy",
     )
 
 
-def _structural_report(path: str, damage: DamagedSession, journal: Journal) -> InputError:
+def _structural_report(path: str, damage: DamagedSession, journal: Journal) -> DamagedSession:
     """:func:`_damage_report` for a file whose SQLite structure is damaged: what can still be
     read (rows whose checksums hold) decides the last good checkpoint."""
     try:
@@ -529,7 +537,14 @@ class Session:
     def open(cls, path: str | os.PathLike[str], applier: Applier | None = None) -> Session:
         """Reopen a session file: the same map, history and undo/redo stacks as when it was left,
         from the journal's checkpoints (nothing is recomputed). A correction that was being
-        computed when the program ended shows as :attr:`EntryStatus.INTERRUPTED`."""
+        computed when the program ended shows as :attr:`EntryStatus.INTERRUPTED`.
+
+        Raises:
+            InputError: not a session file, or one of a newer schema.
+            DamagedSession: the file is damaged (an InputError): truncated, bytes changed (a
+                checksum mismatch), a NaN or malformed value; the message names the last good
+                checkpoint, which :meth:`recover` opens.
+        """
         where = os.fspath(path)
         try:
             journal = Journal.open(path)
