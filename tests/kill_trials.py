@@ -141,6 +141,7 @@ class Tally:
     in_flight_interrupted: int = 0  # its request was, without its outcome (allowed)
     never_created: int = 0  # killed before Session.new returned (allowed: no file at all)
     leftovers: int = 0  # temporary files left beside (reported, not counted as partial)
+    leftover_sessions: int = 0  # ... of them, a session file being created (.s.hitl.*.tmp)
     failures: list[str] = field(default_factory=list)
 
 
@@ -201,6 +202,7 @@ def check_trial(directory: Path, seed: int, acked: int, refs: list[State], tally
     tally.trials += 1
     leftovers = [p for p in directory.iterdir() if p.name.endswith(".tmp")]
     tally.leftovers += len(leftovers)
+    tally.leftover_sessions += sum(p.name.startswith(".s.hitl.") for p in leftovers)
     if not path.exists():
         if acked >= 0:
             tally.lost += 1
@@ -315,7 +317,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{tally.trials} trials, {tally.lost} lost acknowledged steps, {tally.partial} partial "
         f"outputs (killed with the step in flight committed: {tally.in_flight_committed}, "
         f"interrupted: {tally.in_flight_interrupted}; before the session existed: "
-        f"{tally.never_created}; temporary files left: {tally.leftovers}; steps acknowledged "
+        f"{tally.never_created}; temporary files left: {tally.leftovers}, of which "
+        f"{tally.leftover_sessions} of a session being created; steps acknowledged "
         f"when killed -> trials: {spread})"
     )
     return 1 if tally.lost or tally.partial else 0
