@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 DEMO := build/demo
 
-.PHONY: setup browser demo test lint test-rust test-python bench clean
+.PHONY: setup browser demo test lint test-rust test-python bench kill-trials clean
 
 $(BIN)/python:
 	@echo "setup: creating the virtualenv $(VENV)"
@@ -69,6 +69,15 @@ bench: setup
 	$(BIN)/python benches/chains.py --write benches/README.md
 	/usr/bin/time -v $(BIN)/python benches/scale.py --write benches/README.md
 	cargo bench
+
+# kill -9 trials of a session (tests/kill_trials.py): a child runs corrections, undo, redo and
+# saves, is killed with SIGKILL at a random moment, and the reopened session must hold every
+# acknowledged step, nothing else, and nothing half-written. About 2 s per trial; `make test`
+# runs 2 of them (tests/test_kill_trials.py).
+KILL_TRIALS ?= 200
+
+kill-trials: setup
+	$(BIN)/python tests/kill_trials.py --trials $(KILL_TRIALS)
 
 clean:
 	rm -rf $(VENV) build target

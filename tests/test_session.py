@@ -130,6 +130,31 @@ def rows(path: Path, sql: str) -> list[tuple[Any, ...]]:
         connection.close()
 
 
+def reseal(path: Path) -> None:
+    """Recompute every row's checksum, as if the file had been written that way (to test the
+    checks behind the checksums: a tampered value that a checksum does not give away). A file
+    without checksums (schema 1) is left as it is."""
+    connection = sqlite3.connect(path)
+    if "sha256" not in {row[1] for row in connection.execute("PRAGMA table_info(events)")}:
+        connection.close()
+        return
+    from hitl_slam.journal import row_digest
+
+    for table, key, columns in (
+        ("map", "id", ("name", "source", "anchor", "metadata")),
+        ("map_arrays", "name", ("name", "npy")),
+        ("config", "id", ("json",)),
+        ("events", "seq", ("seq", "time", "kind", "payload", "poses")),
+    ):
+        rows = connection.execute(f"SELECT {key}, {', '.join(columns)} FROM {table}").fetchall()
+        connection.executemany(
+            f"UPDATE {table} SET sha256 = ? WHERE {key} = ?",
+            [(row_digest(table, *row[1:]), row[0]) for row in rows],
+        )
+    connection.commit()
+    connection.close()
+
+
 def kinds(path: Path) -> list[str]:
     return [kind for (kind,) in rows(path, "SELECT kind FROM events ORDER BY seq")]
 
@@ -633,6 +658,9 @@ def test_damaged_journal_is_reported(tmp_path: Path) -> None:
     connection.execute("UPDATE events SET poses = NULL WHERE kind = 'correction'")
     connection.commit()
     connection.close()
+    with pytest.raises(InputError, match=r"damaged \(event 3 does not match its checksum\)"):
+        Session.open(path)
+    reseal(path)
     with pytest.raises(InputError, match=r"damaged.*event 3"):
         Session.open(path)
     connection = sqlite3.connect(path)

@@ -22,7 +22,7 @@ from hitl_slam.corrections_file import Apply, Redo, Undo
 from hitl_slam.errors import CorrectionRejected, InputError, SolverError
 from hitl_slam.map import Map
 from hitl_slam.session import Session, StepRefused, refit_lines
-from test_session import REJECTED, drawing, fake_applier, same, tiny_map
+from test_session import REJECTED, drawing, fake_applier, reseal, same, tiny_map
 
 
 @dataclass(frozen=True)
@@ -127,6 +127,7 @@ def test_damaged_or_bad_lines_are_refused(tmp_path: Path) -> None:
     )
     connection.commit()
     connection.close()
+    reseal(path)  # the checksum would give the change away first
     with pytest.raises(InputError, match=r"damaged.*lines must be 2"):
         Session.open(path)
 

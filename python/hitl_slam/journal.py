@@ -11,11 +11,11 @@ Schema (``PRAGMA user_version`` = :data:`SCHEMA_VERSION`, ``PRAGMA application_i
 :data:`APPLICATION_ID`)::
 
     meta(key TEXT PRIMARY KEY, value TEXT)          -- created_by, created (unix time)
-    map(id = 1, name, source, anchor, metadata)    -- metadata: JSON object
-    map_arrays(name TEXT PRIMARY KEY, npy BLOB)     -- Map arrays as .npy (np.save) blobs, and
-                                                    -- array metadata as "metadata/<key>"
-    config(id = 1, json TEXT)                       -- Config.to_dict() as JSON
-    events(seq INTEGER PRIMARY KEY, time REAL, kind TEXT, payload TEXT, poses BLOB NULL)
+    map(id = 1, name, source, anchor, metadata, sha256)   -- metadata: JSON object
+    map_arrays(name TEXT PRIMARY KEY, npy BLOB, sha256)   -- Map arrays as .npy (np.save) blobs,
+                                                    -- and array metadata as "metadata/<key>"
+    config(id = 1, json TEXT, sha256)               -- Config.to_dict() as JSON
+    events(seq INTEGER PRIMARY KEY, time REAL, kind TEXT, payload TEXT, poses BLOB NULL, sha256)
 
 ``seq`` counts from 1 without gaps; ``time`` is Unix time in seconds; ``payload`` is a JSON object;
 ``poses`` is an optional ``(N, 3)`` float64 .npy checkpoint.
@@ -25,19 +25,39 @@ solved lines became part of the state, ``lines``: ``[[phi, rho], ...]``, the sol
 of every correction in effect after it, in order (2K pairs of JSON numbers, which round-trip
 exactly). An addition within schema 1: a journal without ``lines`` still opens, its lines refit
 to S_a / S_b at the checkpoint poses (:attr:`hitl_slam.session.Session.lines`).
+
+Integrity (schema 2): every stored row carries ``sha256 TEXT``, the SHA-256 of its values with
+their SQLite types (:func:`row_digest`): ``map``, ``config``, each ``map_arrays`` blob and each
+event, so a byte changed on disk (which SQLite's own checks do not see) is found when the row is
+read. Opening runs ``PRAGMA quick_check`` (the file's structure: truncation, torn pages) and checks
+every float array of the map and every pose checkpoint is finite. Any failure is a
+:class:`DamagedSession` naming the file, what is wrong and the first damaged event (the events
+before it are intact; :meth:`Journal.salvage` copies them to a new session file). A schema 1 file
+still opens (its rows are unchecked; a warning says so) and is upgraded to schema 2 (checksums
+added, in the same transaction) by its next write.
+
+Failure path of :meth:`Journal.append`: when a write fails (disk full, I/O error, read-only file)
+the first error is the one reported; the transaction is rolled back and the journal reconnects to
+the file to learn what it holds (a hot rollback journal left by a failed commit is rolled back
+then), so the caller's state follows the file: an event that reached the file counts as written,
+one that did not is reported as not written, and the next append works once the disk does. If the
+file cannot even be reopened the journal turns read-only and every later write says why.
 """
 
 from __future__ import annotations
 
 import contextlib
 import enum
+import hashlib
 import io
 import json
+import logging
 import os
 import secrets
 import sqlite3
 import threading
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -53,16 +73,20 @@ from hitl_slam.map import Map
 __all__ = [
     "APPLICATION_ID",
     "SCHEMA_VERSION",
+    "DamagedSession",
     "Event",
     "EventKind",
     "Journal",
     "decode_array",
     "encode_array",
     "read_journal",
+    "row_digest",
 ]
 
-SCHEMA_VERSION = 1
-"""The schema this module writes; it reads this one and older ones."""
+_log = logging.getLogger(__name__)
+
+SCHEMA_VERSION = 2
+"""The schema this module writes; it reads this one and older ones (1: without checksums)."""
 
 APPLICATION_ID = 0x4849544C
 """``PRAGMA application_id`` of a session file: the bytes "HITL"."""
@@ -76,18 +100,28 @@ CREATE TABLE map (
     name TEXT NOT NULL,
     source TEXT,
     anchor INTEGER NOT NULL,
-    metadata TEXT NOT NULL
+    metadata TEXT NOT NULL,
+    sha256 TEXT
 );
-CREATE TABLE map_arrays (name TEXT PRIMARY KEY, npy BLOB NOT NULL);
-CREATE TABLE config (id INTEGER PRIMARY KEY CHECK (id = 1), json TEXT NOT NULL);
+CREATE TABLE map_arrays (name TEXT PRIMARY KEY, npy BLOB NOT NULL, sha256 TEXT);
+CREATE TABLE config (id INTEGER PRIMARY KEY CHECK (id = 1), json TEXT NOT NULL, sha256 TEXT);
 CREATE TABLE events (
     seq INTEGER PRIMARY KEY,
     time REAL NOT NULL,
     kind TEXT NOT NULL,
     payload TEXT NOT NULL,
-    poses BLOB
+    poses BLOB,
+    sha256 TEXT
 );
 """
+
+# Schema 1 -> 2: the checksum columns (filled in the same transaction, see Journal._upgrade).
+_UPGRADE = (
+    "ALTER TABLE map ADD COLUMN sha256 TEXT",
+    "ALTER TABLE map_arrays ADD COLUMN sha256 TEXT",
+    "ALTER TABLE config ADD COLUMN sha256 TEXT",
+    "ALTER TABLE events ADD COLUMN sha256 TEXT",
+)
 
 _REQUIRED_ARRAYS = (
     "poses",
@@ -99,6 +133,7 @@ _REQUIRED_ARRAYS = (
     "information_source",
 )
 _OPTIONAL_ARRAYS = ("normals", "timestamps")
+_FLOAT_ARRAYS = ("poses", "points", "measurements", "information", "normals", "timestamps")
 _METADATA_PREFIX = "metadata/"
 
 
@@ -126,6 +161,36 @@ class Event:
     poses: NDArray[np.float64] | None = None
 
 
+class DamagedSession(InputError):
+    """A session file whose content is damaged: changed bytes (a checksum mismatch), a torn or
+    truncated file, a non-finite or malformed value.
+
+    Attributes:
+        path: the file.
+        what: what is wrong, in a few words.
+        first_bad_seq: the first event that cannot be used; events before it are intact. ``None``
+            when the map or the configuration itself is damaged (no event can be used) or the
+            damage could not be placed.
+    """
+
+    def __init__(
+        self,
+        path: str,
+        what: str,
+        first_bad_seq: int | None = None,
+        *,
+        message: str | None = None,
+    ) -> None:
+        self.path = path
+        self.what = what
+        self.first_bad_seq = first_bad_seq
+        super().__init__(
+            message
+            or f"{path}: the session file is damaged ({what}); "
+            "restore it from a copy, or start a new session from the input map"
+        )
+
+
 def encode_array(array: NDArray[Any]) -> bytes:
     """``array`` as the bytes of a ``.npy`` file (exact: dtype, shape and every bit kept)."""
     buffer = io.BytesIO()
@@ -134,20 +199,50 @@ def encode_array(array: NDArray[Any]) -> bytes:
 
 
 def decode_array(blob: bytes) -> NDArray[Any]:
-    """The array stored by :func:`encode_array`."""
-    array: NDArray[Any] = np.load(io.BytesIO(blob), allow_pickle=False)
+    """The array stored by :func:`encode_array`.
+
+    Raises:
+        ValueError: ``blob`` is not the bytes of a ``.npy`` file without objects.
+    """
+    if not isinstance(blob, bytes):
+        raise ValueError(f"a stored array is a {type(blob).__name__}, not bytes")
+    try:
+        array: NDArray[Any] = np.load(io.BytesIO(blob), allow_pickle=False)
+    except (ValueError, OSError, EOFError, TypeError, OverflowError, MemoryError) as exc:
+        raise ValueError(f"not a .npy array ({exc})") from None
+    if not isinstance(array, np.ndarray):  # pragma: no cover - np.load of .npy bytes
+        raise ValueError("not a .npy array")
     return array
+
+
+def row_digest(table: str, *values: Any) -> str:
+    """SHA-256 (hex) of one row's values with their SQLite types (None, int, float, str, bytes),
+    each length-prefixed, so a changed byte or type anywhere in the row changes it."""
+    h = hashlib.sha256(table.encode())
+    for value in values:
+        if value is None:
+            token = b"N"
+        elif isinstance(value, bytes):
+            token = b"B" + value
+        elif isinstance(value, str):
+            token = b"S" + value.encode("utf-8", "surrogatepass")
+        elif isinstance(value, int):
+            token = b"I" + str(value).encode()
+        elif isinstance(value, float):
+            token = b"F" + value.hex().encode()
+        else:
+            raise TypeError(f"not an SQLite value: {type(value).__name__}")
+        h.update(len(token).to_bytes(8, "little"))
+        h.update(token)
+    return h.hexdigest()
 
 
 def _label(path: str | os.PathLike[str] | None) -> str:
     return MEMORY if path is None else os.fspath(path)
 
 
-def _corrupt(where: str, what: str) -> InputError:
-    return InputError(
-        f"{where}: the session file is damaged ({what}); "
-        "restore it from a copy, or start a new session from the input map"
-    )
+def _corrupt(where: str, what: str, first_bad_seq: int | None = None) -> DamagedSession:
+    return DamagedSession(where, what, first_bad_seq)
 
 
 def _configure(connection: sqlite3.Connection) -> None:
@@ -180,6 +275,17 @@ def _split_metadata(metadata: dict[str, Any]) -> tuple[str, list[tuple[str, byte
     return json.dumps(plain, default=_json_default, sort_keys=True), arrays
 
 
+def _non_finite(map: Map) -> str | None:
+    """The first map array holding NaN or inf, or an edge naming no pose (None: all good)."""
+    for name in _FLOAT_ARRAYS:
+        array = getattr(map, name)
+        if array is not None and not np.isfinite(array).all():
+            return f"the map array {name!r} holds NaN or inf"
+    if map.edges.size and (map.edges.min() < 0 or map.edges.max() >= map.num_poses):
+        return "an edge of the map names a pose that does not exist"
+    return None
+
+
 def _write_header(connection: sqlite3.Connection, map: Map, config: Config) -> None:
     from hitl_slam import __version__
 
@@ -194,9 +300,16 @@ def _write_header(connection: sqlite3.Connection, map: Map, config: Config) -> N
         [("created_by", f"hitl-slam {__version__}"), ("created", repr(time.time()))],
     )
     metadata, metadata_arrays = _split_metadata(map.metadata)
+    source = None if map.source is None else str(map.source)
     connection.execute(
-        "INSERT INTO map(id, name, source, anchor, metadata) VALUES (1, ?, ?, ?, ?)",
-        (map.name, map.source, int(map.anchor), metadata),
+        "INSERT INTO map(id, name, source, anchor, metadata, sha256) VALUES (1, ?, ?, ?, ?, ?)",
+        (
+            str(map.name),
+            source,
+            int(map.anchor),
+            metadata,
+            row_digest("map", str(map.name), source, int(map.anchor), metadata),
+        ),
     )
     arrays: list[tuple[str, bytes]] = [
         (name, encode_array(getattr(map, name))) for name in _REQUIRED_ARRAYS
@@ -207,10 +320,27 @@ def _write_header(connection: sqlite3.Connection, map: Map, config: Config) -> N
         if getattr(map, name) is not None
     ]
     arrays += metadata_arrays
-    connection.executemany("INSERT INTO map_arrays(name, npy) VALUES (?, ?)", arrays)
-    connection.execute(
-        "INSERT INTO config(id, json) VALUES (1, ?)", (json.dumps(config.to_dict()),)
+    connection.executemany(
+        "INSERT INTO map_arrays(name, npy, sha256) VALUES (?, ?, ?)",
+        [(name, blob, row_digest("map_arrays", name, blob)) for name, blob in arrays],
     )
+    text = json.dumps(config.to_dict())
+    connection.execute(
+        "INSERT INTO config(id, json, sha256) VALUES (1, ?, ?)",
+        (text, row_digest("config", text)),
+    )
+
+
+def _event_digest(
+    seq: Any, stamp: Any, kind: Any, payload: Any, poses: Any
+) -> str:  # the event row's checksum
+    return row_digest("events", seq, stamp, kind, payload, poses)
+
+
+def _unlink_quietly(path: str) -> None:
+    # A cleanup must never replace the error being reported (e.g. EROFS on a read-only disk).
+    with contextlib.suppress(OSError):
+        os.unlink(path)
 
 
 def _link_no_clobber(temp: str, target: str) -> None:
@@ -225,8 +355,13 @@ def _link_no_clobber(temp: str, target: str) -> None:
             raise FileExistsError(target) from None
         os.replace(temp, target)
     else:
-        os.unlink(temp)
+        _unlink_quietly(temp)
     fsync_directory(os.path.dirname(target))
+
+
+def _connect(where: str) -> sqlite3.Connection:
+    uri = Path(where).resolve().as_uri() + "?mode=rw"
+    return sqlite3.connect(uri, uri=True, isolation_level=None, check_same_thread=False)
 
 
 class Journal:
@@ -235,11 +370,17 @@ class Journal:
     Appends are serialized by a lock, so one journal may be shared by threads (a web server).
     """
 
-    def __init__(self, connection: sqlite3.Connection, path: str | None) -> None:
+    def __init__(
+        self, connection: sqlite3.Connection, path: str | None, version: int = SCHEMA_VERSION
+    ) -> None:
         self._connection = connection
         self._path = path
+        self._version = version
         self._lock = threading.Lock()
+        self._read_only: str | None = None  # why writing stopped, once it did
         last = connection.execute("SELECT max(seq) FROM events").fetchone()[0]
+        if last is not None and not isinstance(last, int):
+            raise sqlite3.DatabaseError(f"event number {last!r} is not an integer")
         self._last_seq: int = 0 if last is None else int(last)
 
     # -- opening ----------------------------------------------------------------------------
@@ -251,12 +392,28 @@ class Journal:
         """A new session file at ``path`` (``None``: in memory) holding ``map`` and ``config``.
 
         The file appears complete or not at all (built under a temporary name, then linked into
-        place). It is never overwritten: an existing ``path`` is an :class:`InputError`.
+        place). It is never overwritten: an existing ``path`` is an :class:`InputError`, and so
+        is a map holding NaN or inf (the file could not be opened again).
         """
+        problem = _non_finite(map)
+        if problem is not None:
+            raise InputError(
+                f"{_label(path)}: cannot start a session on this map: {problem}; "
+                "fix the map's file first"
+            )
+        return cls._build(path, lambda connection: _write_header(connection, map, config))
+
+    @classmethod
+    def _build(
+        cls,
+        path: str | os.PathLike[str] | None,
+        fill: Callable[[sqlite3.Connection], None],
+    ) -> Journal:
+        """A new session file written by ``fill`` in one transaction, linked into place."""
         if path is None:
             connection = sqlite3.connect(MEMORY, isolation_level=None, check_same_thread=False)
             connection.execute("BEGIN")
-            _write_header(connection, map, config)
+            fill(connection)
             connection.execute("COMMIT")
             return cls(connection, None)
         target = os.fspath(path)
@@ -272,7 +429,7 @@ class Journal:
             try:
                 _configure(connection)
                 connection.execute("BEGIN")
-                _write_header(connection, map, config)
+                fill(connection)
                 connection.execute("COMMIT")
             finally:
                 connection.close()
@@ -285,27 +442,26 @@ class Journal:
                 "check that the directory exists and is writable"
             ) from None
         finally:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(temp)
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(temp + "-journal")
+            _unlink_quietly(temp)
+            _unlink_quietly(temp + "-journal")
         return cls.open(target)
 
     @classmethod
-    def open(cls, path: str | os.PathLike[str]) -> Journal:
+    def open(cls, path: str | os.PathLike[str], *, check: bool = True) -> Journal:
         """Open an existing session file (never creates one).
 
+        With ``check`` (the default), SQLite's ``quick_check`` must pass (the file's structure:
+        truncation, torn pages); :meth:`salvage` opens without it to copy what is still intact.
+
         Raises:
-            InputError: missing file, not a session file, a newer schema, or a damaged file.
+            InputError: missing file, not a session file, a newer schema.
+            DamagedSession: a damaged file (an InputError).
         """
         where = os.fspath(path)
         if not os.path.isfile(where):
             raise InputError(f"{where}: no such file; give the path of a .hitl session file")
-        uri = Path(where).resolve().as_uri() + "?mode=rw"
         try:
-            connection = sqlite3.connect(
-                uri, uri=True, isolation_level=None, check_same_thread=False
-            )
+            connection = _connect(where)
         except sqlite3.Error as exc:
             raise InputError(f"{where}: cannot open the session file ({exc})") from None
         try:
@@ -324,8 +480,31 @@ class Journal:
                 )
             if version < 1:
                 raise _corrupt(where, f"schema version {version}")
-            _configure(connection)
-            journal = cls(connection, where)
+            # A hitl-slam file from here on: what fails now is damage, not another kind of file.
+            try:
+                _configure(connection)
+                problems = ["ok"]
+                if check:
+                    problems = [r[0] for r in connection.execute("PRAGMA quick_check(5)")]
+            except sqlite3.DatabaseError as exc:
+                problems = [str(exc)]
+            if problems != ["ok"]:
+                raise _corrupt(where, "SQLite integrity check: " + "; ".join(map(str, problems)))
+            try:
+                journal = cls(connection, where, version)
+            except sqlite3.DatabaseError as exc:
+                raise _corrupt(where, str(exc)) from None
+            if version < SCHEMA_VERSION:
+                _log.warning(
+                    "%s: a session file of schema %d, without checksums: changed bytes in it "
+                    "cannot be detected; its next write adds them (schema %d)",
+                    where,
+                    version,
+                    SCHEMA_VERSION,
+                )
+        except DamagedSession:
+            connection.close()
+            raise
         except sqlite3.DatabaseError as exc:
             connection.close()
             raise InputError(
@@ -349,92 +528,193 @@ class Journal:
         """The ``seq`` of the last event (0: none)."""
         return self._last_seq
 
+    @property
+    def version(self) -> int:
+        """The file's schema version (1: without checksums; upgraded by the next write)."""
+        return self._version
+
+    @property
+    def read_only(self) -> str | None:
+        """Why the journal stopped writing (the file could not be reopened after a failed
+        write), or ``None`` while it writes."""
+        return self._read_only
+
+    def _checked(self) -> bool:
+        return self._version >= 2
+
     def read_map(self) -> Map:
-        """The input map, exactly as stored."""
+        """The input map, exactly as stored (checksums verified, every float finite).
+
+        Raises:
+            DamagedSession: anything missing, changed or malformed.
+        """
         where = _label(self._path)
+        checked = self._checked()
+        sha = ", sha256" if checked else ""
         try:
-            row = self._connection.execute(
-                "SELECT name, source, anchor, metadata FROM map WHERE id = 1"
-            ).fetchone()
-            blobs = dict(self._connection.execute("SELECT name, npy FROM map_arrays").fetchall())
+            with self._lock:
+                row = self._connection.execute(
+                    f"SELECT name, source, anchor, metadata{sha} FROM map WHERE id = 1"
+                ).fetchone()
+                stored = self._connection.execute(
+                    f"SELECT name, npy{sha} FROM map_arrays"
+                ).fetchall()
         except sqlite3.Error as exc:
             raise _corrupt(where, str(exc)) from None
         if row is None:
             raise _corrupt(where, "no map")
+        if checked and row[4] != row_digest("map", *row[:4]):
+            raise _corrupt(where, "the map's name or metadata does not match its checksum")
+        blobs: dict[str, Any] = {}
+        for item in stored:
+            if not isinstance(item[0], str):
+                raise _corrupt(where, f"a map array has the name {item[0]!r}")
+            if checked and item[2] != row_digest("map_arrays", item[0], item[1]):
+                raise _corrupt(where, f"the map array {item[0]!r} does not match its checksum")
+            blobs[item[0]] = item[1]
         missing = [name for name in _REQUIRED_ARRAYS if name not in blobs]
         if missing:
             raise _corrupt(where, f"map arrays missing: {', '.join(missing)}")
         try:
             arrays = {name: decode_array(blob) for name, blob in blobs.items()}
             metadata = json.loads(row[3])
-        except (ValueError, OSError) as exc:
+        except (ValueError, TypeError, RecursionError) as exc:
             raise _corrupt(where, f"unreadable map data: {exc}") from None
         if not isinstance(metadata, dict):
             metadata = {}
         for name, array in arrays.items():
             if name.startswith(_METADATA_PREFIX):
                 metadata[name[len(_METADATA_PREFIX) :]] = array
-        return Map(
-            poses=arrays["poses"],
-            points=arrays["points"],
-            offsets=arrays["offsets"],
-            edges=arrays["edges"],
-            measurements=arrays["measurements"],
-            information=arrays["information"],
-            information_source=arrays["information_source"],
-            normals=arrays.get("normals"),
-            timestamps=arrays.get("timestamps"),
-            anchor=int(row[2]),
-            name=str(row[0]),
-            source=None if row[1] is None else str(row[1]),
-            metadata=metadata,
-        )
+        try:
+            if not isinstance(row[2], int) or not isinstance(row[0], str):
+                raise ValueError("the map's name or anchor has the wrong type")
+            for name, kinds in (
+                ("poses", "fiu"),
+                ("points", "fiu"),
+                ("measurements", "fiu"),
+                ("information", "fiu"),
+                ("offsets", "iu"),
+                ("edges", "iu"),
+                ("information_source", "iu"),
+                ("normals", "fiu"),
+                ("timestamps", "fiu"),
+            ):
+                if name in arrays and arrays[name].dtype.kind not in kinds:
+                    raise ValueError(f"the map array {name!r} has the wrong type")
+            map = Map(
+                poses=arrays["poses"],
+                points=arrays["points"],
+                offsets=arrays["offsets"],
+                edges=arrays["edges"],
+                measurements=arrays["measurements"],
+                information=arrays["information"],
+                information_source=arrays["information_source"],
+                normals=arrays.get("normals"),
+                timestamps=arrays.get("timestamps"),
+                anchor=row[2],
+                name=row[0],
+                source=None if row[1] is None else str(row[1]),
+                metadata=metadata,
+            )
+        except Exception as exc:  # any malformed array is a damaged file
+            raise _corrupt(where, f"the stored map is malformed: {exc}") from None
+        problem = _non_finite(map)
+        if problem is not None:
+            raise _corrupt(where, problem)
+        return map
 
     def read_config(self) -> Config:
-        """The session's configuration."""
+        """The session's configuration (checksum verified)."""
         where = _label(self._path)
+        checked = self._checked()
         try:
-            row = self._connection.execute("SELECT json FROM config WHERE id = 1").fetchone()
+            with self._lock:
+                row = self._connection.execute(
+                    "SELECT json" + (", sha256" if checked else "") + " FROM config WHERE id = 1"
+                ).fetchone()
         except sqlite3.Error as exc:
             raise _corrupt(where, str(exc)) from None
         if row is None:
             raise _corrupt(where, "no configuration")
+        if checked and row[1] != row_digest("config", row[0]):
+            raise _corrupt(where, "the configuration does not match its checksum")
         try:
             data = json.loads(row[0])
-        except ValueError as exc:
+        except (ValueError, TypeError, RecursionError) as exc:
             raise _corrupt(where, f"unreadable configuration: {exc}") from None
         if not isinstance(data, dict):
             raise _corrupt(where, "the configuration is not a JSON object")
         try:
             return Config.from_dict(data)
         except InputError as exc:
-            raise InputError(f"{where}: {exc}") from None
+            raise _corrupt(where, f"the configuration is invalid: {exc}") from None
+        except Exception as exc:  # a malformed stored value is a damaged file
+            raise _corrupt(where, f"the configuration is invalid: {exc}") from None
 
     def events(self) -> list[Event]:
-        """Every event, in order."""
-        where = _label(self._path)
-        try:
-            rows = self._connection.execute(
-                "SELECT seq, time, kind, payload, poses FROM events ORDER BY seq"
-            ).fetchall()
-        except sqlite3.Error as exc:
-            raise _corrupt(where, str(exc)) from None
+        """Every event, in order (checksums verified).
+
+        Raises:
+            DamagedSession: with ``first_bad_seq``, the first event that cannot be used.
+        """
         out: list[Event] = []
-        kinds = {k.value: k for k in EventKind}
-        for expected, (seq, stamp, kind, payload, poses) in enumerate(rows, 1):
-            if seq != expected:
-                raise _corrupt(where, f"event {expected} is missing")
-            if kind not in kinds:
-                raise _corrupt(where, f"event {seq} has unknown kind {kind!r}")
-            try:
-                data = json.loads(payload)
-                checkpoint = None if poses is None else decode_array(poses)
-            except (ValueError, OSError) as exc:
-                raise _corrupt(where, f"event {seq} is unreadable: {exc}") from None
-            if not isinstance(data, dict):
-                raise _corrupt(where, f"event {seq} payload is not a JSON object")
-            out.append(Event(int(seq), float(stamp), kinds[kind], data, checkpoint))
+        for item in self.intact_events():
+            if isinstance(item, DamagedSession):
+                raise item
+            out.append(item)
         return out
+
+    def intact_events(self) -> Iterable[Event | DamagedSession]:
+        """The events in order, ending at the first that cannot be used, which is yielded as the
+        :class:`DamagedSession` describing it (nothing after it is read)."""
+        where = _label(self._path)
+        checked = self._checked()
+        kinds = {k.value: k for k in EventKind}
+        sql = "SELECT seq, time, kind, payload, poses" + (", sha256" if checked else "")
+        expected = 1
+        while True:
+            try:
+                with self._lock:
+                    row = self._connection.execute(
+                        f"{sql} FROM events WHERE seq >= ? ORDER BY seq LIMIT 1", (expected,)
+                    ).fetchone()
+                    if row is None:
+                        # An event numbered below 1 or not an integer is damage too.
+                        odd = self._connection.execute(
+                            "SELECT count(*) FROM events WHERE NOT (typeof(seq) = 'integer' "
+                            "AND seq >= 1)"
+                        ).fetchone()[0]
+                        if odd:
+                            yield _corrupt(where, f"event {expected} is missing", expected)
+                        return
+            except sqlite3.Error as exc:
+                yield _corrupt(where, f"event {expected} is unreadable: {exc}", expected)
+                return
+            seq, stamp, kind, payload, poses = row[:5]
+            if seq != expected:
+                yield _corrupt(where, f"event {expected} is missing", expected)
+                return
+            if checked and row[5] != _event_digest(seq, stamp, kind, payload, poses):
+                yield _corrupt(where, f"event {seq} does not match its checksum", seq)
+                return
+            try:
+                if kind not in kinds:
+                    raise ValueError(f"unknown kind {kind!r}")
+                if not isinstance(stamp, float | int) or not isinstance(payload, str):
+                    raise ValueError("its time or payload has the wrong type")
+                data = json.loads(payload)
+                if not isinstance(data, dict):
+                    raise ValueError("its payload is not a JSON object")
+                checkpoint = None if poses is None else decode_array(poses)
+                if checkpoint is not None and (
+                    checkpoint.dtype != np.float64 or not np.isfinite(checkpoint).all()
+                ):
+                    raise ValueError("its pose checkpoint holds NaN or inf, or is not float64")
+            except (ValueError, TypeError, RecursionError) as exc:
+                yield _corrupt(where, f"event {seq} is unreadable: {exc}", seq)
+                return
+            yield Event(int(seq), float(stamp), kinds[kind], data, checkpoint)
+            expected += 1
 
     # -- writing ----------------------------------------------------------------------------
 
@@ -446,42 +726,166 @@ class Journal:
     ) -> Event:
         """Commit one event in its own transaction; durable on disk when this returns.
 
+        When the write fails, the first error is the one raised; the journal then agrees with the
+        file again (see the module's notes), and the event was not written. When the commit
+        reported an error but the event did reach the file, this returns normally (the error is
+        logged): the caller's state must follow the file.
+
         Raises:
             InputError: the file was changed by another program since it was opened (two
-                sessions on one file), or it cannot be written.
+                sessions on one file), or it cannot be written (disk full, I/O error, read-only).
         """
         where = _label(self._path)
         text = json.dumps(payload)
         blob = None if poses is None else encode_array(np.asarray(poses, dtype=np.float64))
         stamp = time.time()
         with self._lock:
-            connection = self._connection
-            try:
-                connection.execute("BEGIN IMMEDIATE")
-                try:
-                    last = connection.execute("SELECT max(seq) FROM events").fetchone()[0]
-                    if (0 if last is None else int(last)) != self._last_seq:
-                        raise InputError(
-                            f"{where}: the session file was changed by another program since it "
-                            "was opened; close the other session and open the file again"
-                        )
-                    seq = self._last_seq + 1
-                    connection.execute(
-                        "INSERT INTO events(seq, time, kind, payload, poses) "
-                        "VALUES (?, ?, ?, ?, ?)",
-                        (seq, stamp, kind.value, text, blob),
-                    )
-                    connection.execute("COMMIT")
-                except BaseException:
-                    connection.execute("ROLLBACK")
-                    raise
-            except sqlite3.Error as exc:
+            if self._read_only is not None:
                 raise InputError(
-                    f"{where}: cannot write to the session file ({exc}); check the disk and "
-                    "the file's permissions"
-                ) from None
+                    f"{where}: the session is read-only: {self._read_only}; the map shown is the "
+                    "last one written to the file; fix the disk, then open the file again"
+                )
+            seq = self._last_seq + 1
+            digest = _event_digest(seq, stamp, kind.value, text, blob)
+            try:
+                if self._stale:
+                    # After a failed write: a new connection, as the one kept may have been
+                    # opened read-only while the disk was (SQLite falls back to that silently).
+                    self._reconnect()
+                    self._stale = False
+                self._connection.execute("BEGIN IMMEDIATE")
+            except sqlite3.Error as exc:
+                self._stale = True
+                raise self._write_error(where, exc) from None
+            try:
+                last = self._connection.execute("SELECT max(seq) FROM events").fetchone()[0]
+                if (0 if last is None else last) != self._last_seq:
+                    raise InputError(
+                        f"{where}: the session file was changed by another program since it "
+                        "was opened; close the other session and open the file again"
+                    )
+                if self._version < SCHEMA_VERSION:
+                    self._upgrade()
+                columns = "seq, time, kind, payload, poses"
+                values: tuple[Any, ...] = (seq, stamp, kind.value, text, blob)
+                if self._version >= 2 or self._upgrading:
+                    columns += ", sha256"
+                    values += (digest,)
+                self._connection.execute(
+                    f"INSERT INTO events({columns}) VALUES ({', '.join('?' * len(values))})",
+                    values,
+                )
+                self._connection.execute("COMMIT")
+            except InputError:  # another program's event: nothing of ours was written
+                with contextlib.suppress(sqlite3.Error):
+                    self._connection.execute("ROLLBACK")
+                raise
+            except BaseException as first:
+                self._stale = True
+                written = self._settle(where, seq, digest, first)
+                if not written:
+                    if isinstance(first, sqlite3.Error | OSError):
+                        raise self._write_error(where, first) from None
+                    raise
+                _log.warning(
+                    "%s: the commit of event %d reported %r, but the event is in the file; "
+                    "carrying on",
+                    where,
+                    seq,
+                    str(first),
+                )
+            else:
+                if self._upgrading:
+                    self._version = SCHEMA_VERSION
+            finally:
+                self._upgrading = False
             self._last_seq = seq
         return Event(seq, stamp, kind, payload, None if poses is None else np.array(poses))
+
+    _upgrading = False
+    _stale = False
+
+    def _reconnect(self) -> None:
+        """Replace the connection by a new one to the file (no-op in memory)."""
+        if self._path is None:
+            return
+        with contextlib.suppress(sqlite3.Error):
+            self._connection.close()
+        connection = _connect(self._path)
+        try:
+            _configure(connection)
+        except BaseException:
+            connection.close()
+            raise
+        self._connection = connection
+
+    def _upgrade(self) -> None:
+        """Schema 1 -> 2 inside the caller's transaction: checksum columns, filled from the
+        rows as they stand."""
+        connection = self._connection
+        for statement in _UPGRADE:
+            connection.execute(statement)
+        for row in connection.execute("SELECT name, source, anchor, metadata FROM map").fetchall():
+            connection.execute("UPDATE map SET sha256 = ? WHERE id = 1", (row_digest("map", *row),))
+        for name, blob in connection.execute("SELECT name, npy FROM map_arrays").fetchall():
+            connection.execute(
+                "UPDATE map_arrays SET sha256 = ? WHERE name = ?",
+                (row_digest("map_arrays", name, blob), name),
+            )
+        for (text,) in connection.execute("SELECT json FROM config").fetchall():
+            connection.execute("UPDATE config SET sha256 = ?", (row_digest("config", text),))
+        rows = connection.execute("SELECT seq, time, kind, payload, poses FROM events").fetchall()
+        connection.executemany(
+            "UPDATE events SET sha256 = ? WHERE seq = ?",
+            [(_event_digest(*row), row[0]) for row in rows],
+        )
+        connection.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
+        self._upgrading = True
+
+    def _write_error(self, where: str, exc: BaseException) -> InputError:
+        return InputError(
+            f"{where}: cannot write to the session file ({exc}); nothing was changed; check the "
+            "disk (space, errors) and the file's permissions, then try again"
+        )
+
+    def _settle(self, where: str, seq: int, digest: str, first: BaseException) -> bool:
+        """After a failed write: roll back (its own error never replaces ``first``), then learn
+        from the file whether event ``seq`` is in it. Reconnects to a file (a failed commit can
+        leave a hot rollback journal that only a new connection rolls back); a file that cannot
+        be reopened turns the journal read-only. Returns whether the event is in the file."""
+        with contextlib.suppress(sqlite3.Error):
+            if self._connection.in_transaction:
+                self._connection.execute("ROLLBACK")
+        try:
+            self._reconnect()
+        except sqlite3.Error as exc:
+            self._read_only = (
+                f"a write failed ({first}) and the file could not be opened again ({exc})"
+            )
+            _log.error("%s: %s", where, self._read_only)
+            return False
+        connection = self._connection
+        try:
+            version = connection.execute("PRAGMA user_version").fetchone()[0]
+            column = "sha256" if version >= 2 else "NULL"
+            row = connection.execute(
+                f"SELECT {column} FROM events WHERE seq = ?", (seq,)
+            ).fetchone()
+            last = connection.execute("SELECT max(seq) FROM events").fetchone()[0]
+        except sqlite3.Error as exc:
+            self._read_only = f"a write failed ({first}) and the file cannot be read ({exc})"
+            _log.error("%s: %s", where, self._read_only)
+            return False
+        self._version = int(version)
+        if row is None:
+            return False
+        if last != seq or (version >= 2 and row[0] != digest):
+            self._read_only = (
+                f"a write failed ({first}) and the file now holds an event this session did "
+                "not write"
+            )
+            return False
+        return True
 
     def backup_to(self, path: str | os.PathLike[str]) -> None:
         """Write a copy of the whole journal to a NEW file ``path`` (atomic, never overwrites)."""
@@ -512,8 +916,63 @@ class Journal:
                 "exists and is writable"
             ) from None
         finally:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(temp)
+            _unlink_quietly(temp)
+
+    @classmethod
+    def salvage(
+        cls,
+        path: str | os.PathLike[str],
+        target: str | os.PathLike[str],
+        limit: int | None = None,
+    ) -> int:
+        """Copy what is intact in the damaged session file ``path`` to a NEW session file
+        ``target``: the map, the configuration and the events before the first damaged one
+        (their checksums verified; at most ``limit`` of them), then a ``load`` event saying where
+        they came from. Returns how many events were copied. ``path`` is only read.
+
+        Raises:
+            InputError: ``target`` exists or cannot be written, or the map or configuration of
+                ``path`` is itself damaged (then nothing can be saved from it).
+        """
+        source = os.fspath(path)
+        with cls.open(source, check=False) as damaged:
+            map = damaged.read_map()
+            config = damaged.read_config()
+            events: list[Event] = []
+            damage: DamagedSession | None = None
+            for item in damaged.intact_events():
+                if isinstance(item, DamagedSession):
+                    damage = item
+                    break
+                if limit is not None and len(events) == limit:
+                    break
+                events.append(item)
+
+        def fill(connection: sqlite3.Connection) -> None:
+            _write_header(connection, map, config)
+            rows = []
+            for e in events:
+                text = json.dumps(e.payload)
+                blob = None if e.poses is None else encode_array(e.poses)
+                digest = _event_digest(e.seq, e.time, e.kind.value, text, blob)
+                rows.append((e.seq, e.time, e.kind.value, text, blob, digest))
+            note = {
+                "recovered_from": os.path.abspath(source),
+                "events": len(events),
+                "damage": None if damage is None else damage.what,
+            }
+            seq, stamp, text = len(events) + 1, time.time(), json.dumps(note)
+            rows.append(
+                (seq, stamp, "load", text, None, _event_digest(seq, stamp, "load", text, None))
+            )
+            connection.executemany(
+                "INSERT INTO events(seq, time, kind, payload, poses, sha256) "
+                "VALUES (?, ?, ?, ?, ?, ?)",
+                rows,
+            )
+
+        cls._build(target, fill).close()
+        return len(events)
 
     def close(self) -> None:
         """Close the database (idempotent)."""

@@ -24,7 +24,7 @@ from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.corrections_file import Apply, Step, Undo
 from hitl_slam.errors import CorrectionRejected, InputError, SolverError
 from hitl_slam.geometry import fit_line
-from hitl_slam.journal import Event, EventKind, Journal
+from hitl_slam.journal import DamagedSession, Event, EventKind, Journal
 from hitl_slam.map import Map
 
 __all__ = [
@@ -279,20 +279,107 @@ class _State:
         else:  # pragma: no cover - EventKind is closed
             raise ValueError(f"unknown event kind {kind}")
 
+    def feed(self, event: Event) -> str | None:
+        """Apply a journaled ``event``; return what is wrong with it (None: it applied). A failed
+        event may have changed the state half-way: the caller stops there and does not use this
+        state afterwards."""
+        try:
+            self.apply(event)
+        except Exception as exc:  # any malformed stored value is damage
+            return f"event {event.seq}, {event.kind.value}: {exc}"
+        return None
+
     @classmethod
     def replay(cls, initial: NDArray[np.float64], events: Sequence[Event], where: str) -> _State:
         state = cls(initial)
         for event in events:
-            try:
-                state.apply(event)
-            except (KeyError, TypeError, ValueError, IndexError) as exc:
-                raise InputError(
-                    f"{where}: the session file is damaged (event {event.seq}, "
-                    f"{event.kind.value}: {exc}); restore it from a copy, or start a new session "
-                    "from the input map"
-                ) from None
+            problem = state.feed(event)
+            if problem is not None:
+                raise DamagedSession(where, problem, event.seq)
         state.close_pending(_DIED)
         return state
+
+
+def _recovery_path(path: str) -> str:
+    """A new file beside ``path`` for what is intact in it: ``<stem>.recovered.hitl`` (or
+    ``.recovered-2.hitl``, ... when taken)."""
+    stem = os.path.splitext(path)[0]
+    candidate, k = f"{stem}.recovered.hitl", 1
+    while os.path.exists(candidate):
+        k += 1
+        candidate = f"{stem}.recovered-{k}.hitl"
+    return candidate
+
+
+def _intact(journal: Journal, initial: NDArray[np.float64]) -> tuple[_State, int, str | None]:
+    """Replay the journal's events up to the first that cannot be used (damaged on disk, or
+    not a valid step): the state they give, how many there are, and what is wrong with the next
+    one (None: every event is intact). Never raises for damaged events."""
+    state = _State(initial)
+    good: list[Event] = []
+    for item in journal.intact_events():
+        if isinstance(item, DamagedSession):
+            return state, len(good), item.what
+        problem = state.feed(item)
+        if problem is not None:
+            # The failed event may have changed the state half-way: replay the good ones again.
+            state = _State(initial)
+            for event in good:
+                state.feed(event)
+            return state, len(good), problem
+        good.append(item)
+    return state, len(good), None
+
+
+def _describe(state: _State) -> str:
+    applied = len(state.applied)
+    if not applied:
+        return "the input map (no correction applied)"
+    top = state.applied[-1]
+    return f"the map after correction {top.index + 1} of the history ({applied} applied)"
+
+
+def _damage_report(path: str, what: str, journal: Journal, map: Map | None) -> DamagedSession:
+    """The error a user gets for a damaged file: what is wrong and the last good checkpoint,
+    with the call that opens it (the intact events copied to a new file; the damaged one kept).
+    ``map``: the stored input map, None when it is damaged too."""
+    if map is None:
+        return DamagedSession(
+            path,
+            what,
+            message=f"{path}: the session file is damaged ({what}); the stored input map is "
+            "damaged too, so no checkpoint in it can be trusted; restore the file from a copy, "
+            "or start a new session from the input map",
+        )
+    state, count, _ = _intact(journal, map.poses)
+    if count == 0:
+        return DamagedSession(
+            path,
+            what,
+            1,
+            message=f"{path}: the session file is damaged ({what}); no event in it is intact; "
+            "restore the file from a copy, or start a new session from the input map",
+        )
+    return DamagedSession(
+        path,
+        what,
+        count + 1,
+        message=f"{path}: the session file is damaged ({what}); events 1 to {count} are "
+        f"intact; the last good checkpoint is {_describe(state)}: open it with "
+        f"hitl_slam.Session.recover({path!r}), which copies those events to "
+        f"{_recovery_path(path)} and leaves this file as it is, or restore the file from a copy",
+    )
+
+
+def _structural_report(path: str, damage: DamagedSession, journal: Journal) -> DamagedSession:
+    """:func:`_damage_report` for a file whose SQLite structure is damaged: what can still be
+    read (rows whose checksums hold) decides the last good checkpoint."""
+    try:
+        stored = journal.read_map()
+        journal.read_config()
+    except InputError:
+        return _damage_report(path, damage.what, journal, None)
+    return _damage_report(path, damage.what, journal, stored)
 
 
 def moved_poses(before: NDArray[np.float64], after: NDArray[np.float64]) -> tuple[int, float]:
@@ -450,15 +537,61 @@ class Session:
     def open(cls, path: str | os.PathLike[str], applier: Applier | None = None) -> Session:
         """Reopen a session file: the same map, history and undo/redo stacks as when it was left,
         from the journal's checkpoints (nothing is recomputed). A correction that was being
-        computed when the program ended shows as :attr:`EntryStatus.INTERRUPTED`."""
-        journal = Journal.open(path)
+        computed when the program ended shows as :attr:`EntryStatus.INTERRUPTED`.
+
+        Raises:
+            InputError: not a session file, or one of a newer schema.
+            DamagedSession: the file is damaged (an InputError): truncated, bytes changed (a
+                checksum mismatch), a NaN or malformed value; the message names the last good
+                checkpoint, which :meth:`recover` opens.
+        """
+        where = os.fspath(path)
+        try:
+            journal = Journal.open(path)
+        except DamagedSession as damage:
+            # The file's structure is damaged: look at what can still be read, to name it.
+            try:
+                salvage = Journal.open(path, check=False)
+            except InputError:
+                raise damage from None
+            with salvage:
+                raise _structural_report(where, damage, salvage) from None
         try:
             stored = journal.read_map()
-            state = _State.replay(stored.poses, journal.events(), os.fspath(path))
-            return cls(journal, stored, journal.read_config(), state, applier)
+            config = journal.read_config()
+            try:
+                state = _State.replay(stored.poses, journal.events(), where)
+            except DamagedSession as damage:
+                raise _damage_report(where, damage.what, journal, stored) from None
+            return cls(journal, stored, config, state, applier)
         except BaseException:
             journal.close()
             raise
+
+    @classmethod
+    def recover(
+        cls,
+        path: str | os.PathLike[str],
+        target: str | os.PathLike[str] | None = None,
+        applier: Applier | None = None,
+    ) -> Session:
+        """Open the last good checkpoint of a damaged session file: copy its map, configuration
+        and the events before the first damaged one (checksums verified, each a valid step) to a
+        NEW session file ``target`` (default ``<stem>.recovered.hitl`` beside it) and open that.
+        ``path`` is only read; an intact file is copied whole.
+
+        Raises:
+            InputError: ``target`` exists or cannot be written, or the map or configuration in
+                ``path`` is damaged (nothing in it can be trusted then).
+        """
+        where = os.fspath(path)
+        destination = _recovery_path(where) if target is None else os.fspath(target)
+        with Journal.open(where, check=False) as damaged:
+            stored = damaged.read_map()
+            damaged.read_config()
+            _, count, _ = _intact(damaged, stored.poses)
+        Journal.salvage(where, destination, limit=count)
+        return cls.open(destination, applier)
 
     # -- reading ----------------------------------------------------------------------------
 

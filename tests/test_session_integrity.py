@@ -1,0 +1,331 @@
+"""Integrity of session files (issue 13, finding 3): a truncated file, bytes changed inside a
+stored array or event, a NaN checkpoint, malformed values of every kind: each a clear InputError
+naming the file and the last good checkpoint, never silent data and never a traceback; the last
+good checkpoint opens with Session.recover; schema 1 files (no checksums) still open and gain
+checksums on their next write."""
+
+from __future__ import annotations
+
+import logging
+import random
+import shutil
+import sqlite3
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from hitl_slam.errors import InputError
+from hitl_slam.io.maps import load_map
+from hitl_slam.journal import decode_array, encode_array
+from hitl_slam.session import EntryStatus, Session
+from test_session import drawing, fake_applier, reseal, same, tiny_map
+
+DATA = Path(__file__).resolve().parent / "data"
+
+
+def a_session(path: Path) -> tuple[np.ndarray, list[EntryStatus]]:
+    """A session with two corrections, the second undone; its poses and statuses."""
+    with Session.new(tiny_map(), path, applier=fake_applier) as session:
+        session.apply(drawing(0.6))
+        session.apply(drawing(1.6))
+        session.undo()
+        return session.poses.copy(), [e.status for e in session.history]
+
+
+def blob(path: Path, sql: str) -> bytes:
+    connection = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
+    try:
+        return bytes(connection.execute(sql).fetchone()[0])
+    finally:
+        connection.close()
+
+
+def flip_inside(path: Path, stored: bytes, at: float = 0.5) -> int:
+    """Flip one bit of ``stored`` (a value in the file) where it is on disk: a 16-byte window of
+    its data found exactly once in the file. Returns the file offset changed."""
+    data = bytearray(path.read_bytes())
+    start = 128 + int((len(stored) - 160) * at)  # past the .npy header
+    for shift in range(0, len(stored) - start - 16):
+        window = stored[start + shift : start + shift + 16]
+        where = data.find(window)
+        if where >= 0 and data.find(window, where + 1) < 0:
+            data[where + 8] ^= 0x04
+            path.write_bytes(bytes(data))
+            return where + 8
+    raise AssertionError("no unique window of the value in the file")
+
+
+def opened_state(path: Path) -> tuple[np.ndarray, list[EntryStatus]] | None:
+    """The poses and statuses the file opens with, or None when it is refused (InputError)."""
+    try:
+        with Session.open(path, applier=fake_applier) as session:
+            return session.poses.copy(), [e.status for e in session.history]
+    except InputError:
+        return None
+
+
+# -- finding 3: truncation, changed bytes, NaN ---------------------------------------------------
+
+
+def test_a_truncated_file_never_opens_with_other_data(tmp_path: Path) -> None:
+    path = tmp_path / "s.hitl"
+    poses, _ = a_session(path)
+    size = path.stat().st_size
+    cuts = sorted({*range(0, size, 509), *range(size - 4096, size, 256), size - 1})
+    for cut in cuts:
+        copy = tmp_path / "cut.hitl"
+        shutil.copyfile(path, copy)
+        with copy.open("r+b") as f:
+            f.truncate(cut)
+        with pytest.raises(InputError) as info:
+            Session.open(copy, applier=fake_applier)
+        message = str(info.value)
+        assert message.startswith(str(copy)), message
+        assert "damaged" in message or "not a hitl-slam session" in message, (cut, message)
+    assert same(opened_state(path)[0], poses)  # type: ignore[index]
+
+
+def test_a_changed_byte_in_the_map_arrays_is_found(tmp_path: Path) -> None:
+    path = tmp_path / "s.hitl"
+    a_session(path)
+    flip_inside(path, blob(path, "SELECT npy FROM map_arrays WHERE name = 'points'"))
+    with pytest.raises(InputError) as info:
+        Session.open(path, applier=fake_applier)
+    message = str(info.value)
+    assert message.startswith(f"{path}: the session file is damaged (")
+    assert "'points' does not match its checksum" in message
+    assert "restore it from a copy, or start a new session from the input map" in message
+    with pytest.raises(InputError, match="'points' does not match its checksum"):
+        load_map(path)
+
+
+def test_a_changed_byte_in_a_checkpoint_names_the_last_good_one(tmp_path: Path) -> None:
+    path = tmp_path / "s.hitl"
+    a_session(path)
+    with Session.open(path, applier=fake_applier) as session:
+        session.redo()
+        session.undo()
+        session.undo()
+        assert same(session.poses, session.input_map.poses)
+    # Event 5 holds the second correction's checkpoint; the first (event 3) stays good.
+    flip_inside(path, blob(path, "SELECT poses FROM events WHERE seq = 5"), at=0.9)
+    with pytest.raises(InputError) as info:
+        Session.open(path, applier=fake_applier)
+    message = str(info.value)
+    assert message.startswith(f"{path}: the session file is damaged (event 5 does not match ")
+    assert "events 1 to 4 are intact" in message
+    assert "the last good checkpoint is the map after correction 1 of the history" in message
+    recovered = tmp_path / "s.recovered.hitl"
+    assert f"hitl_slam.Session.recover('{path}')" in message
+    assert str(recovered) in message
+    before = path.read_bytes()
+    with Session.recover(path, applier=fake_applier) as session:
+        assert session.path == str(recovered)
+        # Events 1-4: the load, correction 1, and the request of correction 2 without its outcome.
+        assert [e.status for e in session.history] == [
+            EntryStatus.APPLIED,
+            EntryStatus.INTERRUPTED,
+        ]
+        expected = fake_applier(
+            session.input_map, session.input_map.poses, drawing(0.6), [], session.config
+        ).poses
+        assert same(session.poses, expected)
+        session.apply(drawing(2.5))  # a usable session
+    assert path.read_bytes() == before  # the damaged file is only read
+    assert opened_state(recovered) is not None
+
+
+def test_a_nan_checkpoint_is_refused_before_redo_can_use_it(tmp_path: Path) -> None:
+    path = tmp_path / "s.hitl"
+    a_session(path)
+    connection = sqlite3.connect(path)
+    checkpoint = decode_array(blob(path, "SELECT poses FROM events WHERE seq = 5")).copy()
+    checkpoint[3, 0] = np.nan
+    connection.execute("UPDATE events SET poses = ? WHERE seq = 5", (encode_array(checkpoint),))
+    connection.commit()
+    connection.close()
+    reseal(path)  # a checksum that agrees: the value itself must be refused
+    with pytest.raises(InputError) as info, Session.open(path, applier=fake_applier) as session:
+        session.redo()  # before: NaN poses went live here
+    message = str(info.value)
+    assert "event 5 is unreadable: its pose checkpoint holds NaN or inf" in message
+    assert "events 1 to 4 are intact" in message
+
+
+@pytest.mark.parametrize(
+    "sql",
+    [
+        "UPDATE map_arrays SET npy = ? WHERE name = 'poses'",
+        "UPDATE map_arrays SET npy = ? WHERE name = 'measurements'",
+    ],
+)
+def test_a_nan_in_the_stored_map_is_refused(tmp_path: Path, sql: str) -> None:
+    path = tmp_path / "s.hitl"
+    a_session(path)
+    name = sql.split("'")[1]
+    array = decode_array(blob(path, f"SELECT npy FROM map_arrays WHERE name = '{name}'")).copy()
+    array.flat[4] = np.inf
+    connection = sqlite3.connect(path)
+    connection.execute(sql, (encode_array(array),))
+    connection.commit()
+    connection.close()
+    reseal(path)
+    with pytest.raises(InputError, match=f"the map array '{name}' holds NaN or inf"):
+        Session.open(path)
+
+
+# -- malformed files of every kind: InputError or the very same data -----------------------------
+
+_CELLS = [
+    ("map", "name"),
+    ("map", "source"),
+    ("map", "anchor"),
+    ("map", "metadata"),
+    ("map_arrays", "name"),
+    ("map_arrays", "npy"),
+    ("config", "json"),
+    ("events", "seq"),
+    ("events", "time"),
+    ("events", "kind"),
+    ("events", "payload"),
+    ("events", "poses"),
+]
+
+
+def _odd_value(rng: random.Random, old: Any) -> Any:
+    choices: list[Any] = [
+        None,
+        0,
+        -1,
+        2**62,
+        1.5,
+        float("nan"),
+        "",
+        "x",
+        "{}",
+        "[]",
+        '{"a": 1}',
+        "[" * 5000,
+        b"",
+        b"\x93NUMPY",
+        encode_array(np.zeros(3)),
+        encode_array(np.array(["a"])),
+        encode_array(np.full((24, 3), np.nan)),
+        encode_array(np.zeros((24, 3), dtype=np.float32)),
+        encode_array(np.zeros((2, 2), dtype=np.int64)),
+    ]
+    if isinstance(old, bytes | str) and old:
+        cut = rng.randrange(len(old))
+        choices += [old[:cut], old[:cut] + old[cut + 1 :]]
+    if isinstance(old, str):
+        choices += [old.replace("1", "2", 1), old.replace('"', "", 1), old.replace(":", ",", 1)]
+    return rng.choice(choices)
+
+
+def test_malformed_values_are_input_errors_or_change_nothing(tmp_path: Path) -> None:
+    """Every stored cell replaced by values of the wrong type, shape or content (checksums
+    recomputed, so the checks behind them are tested): Session.open and load_map give either an
+    InputError naming the file or a session (the value was a valid one), never another
+    exception."""
+    original = tmp_path / "s.hitl"
+    poses, statuses = a_session(original)
+    rng = random.Random(13)
+    outcomes = {"refused": 0, "opened": 0}
+    for trial in range(72):
+        table, column = _CELLS[trial % len(_CELLS)]
+        path = tmp_path / f"m{trial}.hitl"
+        shutil.copyfile(original, path)
+        connection = sqlite3.connect(path)
+        keys = connection.execute(f"SELECT rowid, {column} FROM {table}").fetchall()
+        rowid, old = rng.choice(keys)
+        try:
+            connection.execute(
+                f"UPDATE {table} SET {column} = ? WHERE rowid = ?", (_odd_value(rng, old), rowid)
+            )
+            connection.commit()
+        except sqlite3.IntegrityError:  # NOT NULL, a duplicate key: not a file one can write
+            connection.close()
+            continue
+        connection.close()
+        reseal(path)
+        for reader in ("session", "load_map"):
+            try:
+                if reader == "session":
+                    state = opened_state(path)
+                else:
+                    load_map(path)
+                    state = (poses, statuses)
+            except InputError as exc:  # load_map lets the InputError through
+                message = str(exc)
+                state = None
+            else:
+                message = str(path)
+            assert message.startswith(str(path)), message
+            if state is None:
+                outcomes["refused"] += 1
+                with pytest.raises(InputError, match=str(path)):
+                    Session.open(path)
+            else:
+                outcomes["opened"] += 1
+    assert outcomes["refused"] > 40
+
+
+def test_flipped_bytes_anywhere_never_open_with_other_data(tmp_path: Path) -> None:
+    """Bit flips at random offsets, no reseal: refused, or the very same poses and history."""
+    original = tmp_path / "s.hitl"
+    poses, statuses = a_session(original)
+    data = original.read_bytes()
+    rng = random.Random(3)
+    refused = 0
+    for trial in range(150):
+        changed = bytearray(data)
+        for _ in range(rng.choice((1, 1, 2, 8))):
+            changed[rng.randrange(len(changed))] ^= 1 << rng.randrange(8)
+        path = tmp_path / f"f{trial}.hitl"
+        path.write_bytes(bytes(changed))
+        state = opened_state(path)
+        if state is None:
+            refused += 1
+            continue
+        assert same(state[0], poses), trial
+        assert state[1] == statuses, trial
+    assert refused > 30
+
+
+# -- schema 1 (no checksums) -----------------------------------------------------------------------
+
+
+def test_a_schema_1_file_opens_with_a_warning_and_gains_checksums_on_its_next_write(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """tests/data/session_schema1.hitl was written by hitl-slam before checksums (schema 1)."""
+    path = tmp_path / "old.hitl"
+    shutil.copyfile(DATA / "session_schema1.hitl", path)
+    with (
+        caplog.at_level(logging.WARNING, logger="hitl_slam"),
+        Session.open(path, applier=fake_applier) as session,
+    ):
+        statuses = [e.status for e in session.history]
+        assert statuses == [EntryStatus.APPLIED, EntryStatus.UNDONE]
+        assert session.poses[5].tolist() == [
+            2.5,
+            -0.09589242746631385,
+            0.014183109273161312,
+        ]
+        assert path.read_bytes() == (DATA / "session_schema1.hitl").read_bytes()  # read only
+        session.redo()
+        poses = session.poses.copy()
+    assert "without checksums" in caplog.text
+    connection = sqlite3.connect(path)
+    assert connection.execute("PRAGMA user_version").fetchone()[0] == 2
+    assert connection.execute("SELECT count(*) FROM events WHERE sha256 IS NULL").fetchone()[0] == 0
+    connection.close()
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="hitl_slam"):
+        assert same(opened_state(path)[0], poses)  # type: ignore[index]
+    assert "without checksums" not in caplog.text
+    flip_inside(path, blob(path, "SELECT npy FROM map_arrays WHERE name = 'points'"))
+    with pytest.raises(InputError, match="'points' does not match its checksum"):
+        Session.open(path)
