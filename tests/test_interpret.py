@@ -577,6 +577,6 @@ def test_an_absurd_drawing_uncertainty_is_an_input_error_not_a_crash(
     b = _sloppy(world.displayed_segment(A_FIRST, world.first_wrong + 1), rng, -1.0, 0.04)
     before = world.map.poses.copy()
     drawn = DrawnCorrection.make(a, b, Mode.COLLINEAR, sigma_h=sigma_h)
-    with pytest.raises((InputError, CorrectionRejected), match="too wide|sigma_h"):
+    with pytest.raises((InputError, CorrectionRejected), match=r"too wide|sigma_h"):
         interpret(world.map, world.map.poses, drawn, DEFAULT)
     assert np.array_equal(world.map.poses, before)

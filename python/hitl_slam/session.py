@@ -771,6 +771,17 @@ class Session:
             self._record(kind, {"request": entry.seq})
             return entry.snapshot()
 
+    def record_output(self, path: str | os.PathLike[str]) -> None:
+        """Journals a ``save`` event for a file written for this session by its caller (the
+        ``.yaml`` beside an exported ``.pgm``, an export of the corrections), with the payload
+        :meth:`save` journals for its own files, so that every written file has its entry."""
+        target = os.path.abspath(path)
+        with self._operation:
+            self._check_open()
+            self._record(
+                EventKind.SAVE, {"path": target, "format": os.path.splitext(target)[1].lower()}
+            )
+
     def save(self, path: str | os.PathLike[str]) -> None:
         """Export the current map to ``path`` (format from its extension, see
         :func:`hitl_slam.io.export.export`), then journal a ``save`` event."""

@@ -375,20 +375,8 @@ class SessionHost:
         """Journal a ``save`` event for a file written beside one :meth:`Session.save` journaled
         (a ``.pgm``'s ``.yaml``) or by :meth:`Session.export_corrections` (which journals
         nothing), with the payload :meth:`Session.save` writes, so that every file the server
-        writes has its entry. Called with the operation lock held, after the file was written.
-
-        Session has no public call for this; this uses its own journaling step (journal first,
-        then the state in memory, which ignores ``save`` events) under its operation lock.
-        """
-        from hitl_slam.journal import EventKind
-
-        session = self._session
-        target = os.path.abspath(path)
-        with session._operation:
-            session._check_open()
-            session._record(
-                EventKind.SAVE, {"path": target, "format": os.path.splitext(target)[1].lower()}
-            )
+        writes has its entry. Called after the file was written."""
+        self._session.record_output(path)
 
     def _run(self, step: Step, where: str, journal_next: int | None = None) -> dict[str, Any]:
         """One step through :meth:`Session.run_step` (operation lock held); the Applied
