@@ -329,3 +329,23 @@ def test_a_schema_1_file_opens_with_a_warning_and_gains_checksums_on_its_next_wr
     flip_inside(path, blob(path, "SELECT npy FROM map_arrays WHERE name = 'points'"))
     with pytest.raises(InputError, match="'points' does not match its checksum"):
         Session.open(path)
+
+
+def test_a_session_file_left_half_created_by_a_killed_run_is_removed(tmp_path: Path) -> None:
+    """A run killed while creating a session leaves its temporary copy (``.<name>.<8 hex>.tmp``
+    and SQLite's ``-journal``) beside it; the next session created or backed up in that folder
+    removes them (they are older than this process), and a fresh temporary file is kept."""
+    import os
+    import time
+
+    stale = [tmp_path / ".s.hitl.0123abcd.tmp", tmp_path / ".s.hitl.0123abcd.tmp-journal"]
+    for p in stale:
+        p.write_bytes(b"x" * 100)
+        old = time.time() - 3600
+        os.utime(p, (old, old))
+    unrelated = tmp_path / ".notes.tmp"
+    unrelated.write_bytes(b"keep")
+    a_session(tmp_path / "other.hitl")
+    assert not any(p.exists() for p in stale)
+    assert unrelated.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".notes.tmp", "other.hitl"]

@@ -67,7 +67,7 @@ from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
-from hitl_slam.io.atomic import fsync_directory
+from hitl_slam.io.atomic import fsync_directory, sweep_once
 from hitl_slam.map import Map
 
 __all__ = [
@@ -423,6 +423,8 @@ class Journal:
                 "(open the existing one to continue it, or choose another name)"
             )
         directory, name = os.path.split(target)
+        # Session files of a run killed while creating one are left under this naming.
+        sweep_once(directory)
         temp = os.path.join(directory, f".{name}.{secrets.token_hex(4)}.tmp")
         try:
             connection = sqlite3.connect(temp, isolation_level=None)
@@ -896,6 +898,7 @@ class Journal:
                 "the old one"
             )
         directory, name = os.path.split(target)
+        sweep_once(directory)
         temp = os.path.join(directory, f".{name}.{secrets.token_hex(4)}.tmp")
         try:
             copy = sqlite3.connect(temp, isolation_level=None)

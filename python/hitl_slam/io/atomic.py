@@ -45,6 +45,7 @@ __all__ = [
     "atomic_writer",
     "discard_temp",
     "fsync_directory",
+    "sweep_once",
     "sweep_stale_temps",
     "temp_path",
 ]
@@ -206,8 +207,9 @@ def sweep_stale_temps(directory: str | os.PathLike[str]) -> list[str]:
     return removed
 
 
-def _sweep_once(directory: str) -> None:
-    key = os.path.realpath(directory or ".")
+def sweep_once(directory: str | os.PathLike[str]) -> None:
+    """:func:`sweep_stale_temps` on ``directory``, the first time this process writes there."""
+    key = os.path.realpath(os.fspath(directory) or ".")
     if key in _SWEPT:
         return
     sweep_stale_temps(directory)
@@ -291,7 +293,7 @@ def _keep_mode(temp: str, target: str) -> None:
 @contextlib.contextmanager
 def _atomic(target: str, opener: Callable[[int], IO[Any]]) -> Iterator[IO[Any]]:
     _check_target(target)
-    _sweep_once(os.path.dirname(target))
+    sweep_once(os.path.dirname(target))
     try:
         fd, temp = _create_temp(target)
     except OSError as exc:
