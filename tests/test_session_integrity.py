@@ -349,3 +349,28 @@ def test_a_session_file_left_half_created_by_a_killed_run_is_removed(tmp_path: P
     assert not any(p.exists() for p in stale)
     assert unrelated.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == [".notes.tmp", "other.hitl"]
+
+
+@pytest.mark.parametrize("suffix", [".g2o", ".pgm", ".covars"])
+def test_a_save_the_journal_cannot_record_writes_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, suffix: str
+) -> None:
+    """Issue 13, finding 6: the map was exported, then journaling the save failed, and the
+    command failed with the file written anyway. Now the files appear only once the event is
+    journaled."""
+    import sqlite3 as sq
+
+    with Session.new(tiny_map(), tmp_path / "s.hitl", applier=fake_applier) as session:
+        session.apply(drawing(0.6))
+        journal = session._journal
+
+        def refuse(*args: Any, **kwargs: Any) -> Any:
+            raise sq.OperationalError("disk I/O error")
+
+        monkeypatch.setattr(journal, "append", refuse)
+        with pytest.raises((InputError, sq.Error, OSError)):
+            session.save(tmp_path / f"map{suffix}")
+        monkeypatch.undo()
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["s.hitl"]
+        session.save(tmp_path / f"map{suffix}")
+        assert (tmp_path / f"map{suffix}").exists()

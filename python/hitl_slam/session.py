@@ -24,6 +24,7 @@ from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.corrections_file import Apply, Step, Undo
 from hitl_slam.errors import CorrectionRejected, InputError, SolverError
 from hitl_slam.geometry import fit_line
+from hitl_slam.io.atomic import atomic_outputs
 from hitl_slam.journal import DamagedSession, Event, EventKind, Journal
 from hitl_slam.map import Map
 
@@ -784,16 +785,19 @@ class Session:
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Export the current map to ``path`` (format from its extension, see
-        :func:`hitl_slam.io.export.export`), then journal a ``save`` event."""
+        :func:`hitl_slam.io.export.export`) and journal a ``save`` event: all or nothing."""
         from hitl_slam.io.export import export
 
         with self._operation:
             self._check_open()
-            export(self._map, self.poses.copy(), path)
             target = os.path.abspath(os.fspath(path))
-            self._record(
-                EventKind.SAVE, {"path": target, "format": os.path.splitext(target)[1].lower()}
-            )
+            # The files are prepared, the event journaled, and only then are they renamed into
+            # place: a save the journal cannot record writes nothing (issue 13, finding 6).
+            with atomic_outputs():
+                export(self._map, self.poses.copy(), path)
+                self._record(
+                    EventKind.SAVE, {"path": target, "format": os.path.splitext(target)[1].lower()}
+                )
 
     def export_corrections(self, path: str | os.PathLike[str]) -> int:
         """Write the applied corrections, in order, as a JSON Lines corrections file (atomic),
