@@ -118,6 +118,7 @@ def test_a_changed_byte_in_a_checkpoint_names_the_last_good_one(tmp_path: Path) 
     assert "events 1 to 4 are intact" in message
     assert "the last good checkpoint is the map after correction 1 of the history" in message
     recovered = tmp_path / "s.recovered.hitl"
+    assert f"`hitl-slam recover {path}`" in message
     assert f"hitl_slam.Session.recover('{path}')" in message
     assert str(recovered) in message
     before = path.read_bytes()
@@ -374,3 +375,31 @@ def test_a_save_the_journal_cannot_record_writes_nothing(
         assert sorted(p.name for p in tmp_path.iterdir()) == ["s.hitl"]
         session.save(tmp_path / f"map{suffix}")
         assert (tmp_path / f"map{suffix}").exists()
+
+
+def test_the_recover_command_copies_the_last_good_checkpoint(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The damage message names a command, not only a Python call: `hitl-slam recover`."""
+    from hitl_slam.cli import main
+
+    path = tmp_path / "s.hitl"
+    a_session(path)
+    flip_inside(path, blob(path, "SELECT poses FROM events WHERE seq = 5"), at=0.9)
+    before = path.read_bytes()
+    assert main(["recover", str(path)]) == 0
+    recovered = tmp_path / "s.recovered.hitl"
+    out = capsys.readouterr().out
+    assert f"wrote {recovered}" in out
+    assert f"hitl-slam serve {recovered}" in out
+    assert path.read_bytes() == before
+    assert opened_state(recovered) is not None
+    # A second run never overwrites the copy it made: a new name by default, and an existing
+    # file given with -o is refused in one line (exit 2), nothing changed.
+    copy = recovered.read_bytes()
+    assert main(["recover", str(path)]) == 0
+    assert (tmp_path / "s.recovered-2.hitl").exists()
+    capsys.readouterr()
+    assert main(["recover", str(path), "-o", str(recovered)]) == 2
+    assert "exists" in capsys.readouterr().err
+    assert recovered.read_bytes() == copy

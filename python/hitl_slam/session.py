@@ -366,9 +366,9 @@ def _damage_report(path: str, what: str, journal: Journal, map: Map | None) -> D
         what,
         count + 1,
         message=f"{path}: the session file is damaged ({what}); events 1 to {count} are "
-        f"intact; the last good checkpoint is {_describe(state)}: open it with "
-        f"hitl_slam.Session.recover({path!r}), which copies those events to "
-        f"{_recovery_path(path)} and leaves this file as it is, or restore the file from a copy",
+        f"intact; the last good checkpoint is {_describe(state)}: `hitl-slam recover {path}` "
+        f"(or hitl_slam.Session.recover({path!r})) copies those events to "
+        f"{_recovery_path(path)} and leaves this file as it is; or restore the file from a copy",
     )
 
 
