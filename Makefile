@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 DEMO := build/demo
 
-.PHONY: setup browser demo test lint test-rust test-python bench fuzz clean
+.PHONY: setup browser demo test lint test-rust test-python bench clean
 
 $(BIN)/python:
 	@echo "setup: creating the virtualenv $(VENV)"
@@ -70,6 +70,11 @@ bench: setup
 	/usr/bin/time -v $(BIN)/python benches/scale.py --write benches/README.md
 	cargo bench
 
+clean:
+	rm -rf $(VENV) build target
+
+.PHONY: fuzz
+
 # Property-based fuzzing of every reader (issue 13): FUZZ_EXAMPLES cases per reader (corrections
 # JSONL, .hitl, .covars, g2o, TORO, CARMEN, relations); `make test` runs a few of each. Per-reader
 # tallies are rewritten every 500 cases in $(FUZZ_STATS). Hours on 2 cores at the default.
@@ -81,6 +86,3 @@ fuzz: setup
 	HITL_FUZZ_PROFILE=fuzz HITL_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) HITL_FUZZ_STATS=$(FUZZ_STATS) \
 		$(BIN)/python -m pytest -p no:cacheprovider -q --hypothesis-show-statistics \
 		tests/test_fuzz_readers.py tests/test_fuzz_session.py
-
-clean:
-	rm -rf $(VENV) build target
