@@ -81,3 +81,17 @@ kill-trials: setup
 
 clean:
 	rm -rf $(VENV) build target
+
+.PHONY: fuzz
+
+# Property-based fuzzing of every reader (issue 13): FUZZ_EXAMPLES cases per reader (corrections
+# JSONL, .hitl, .covars, g2o, TORO, CARMEN, relations); `make test` runs a few of each. Per-reader
+# tallies are rewritten every 500 cases in $(FUZZ_STATS). Hours on 2 cores at the default.
+FUZZ_EXAMPLES ?= 100000
+FUZZ_STATS ?= build/fuzz-stats.json
+
+fuzz: setup
+	mkdir -p $(dir $(FUZZ_STATS))
+	HITL_FUZZ_PROFILE=fuzz HITL_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) HITL_FUZZ_STATS=$(FUZZ_STATS) \
+		$(BIN)/python -m pytest -p no:cacheprovider -q --hypothesis-show-statistics \
+		tests/test_fuzz_readers.py tests/test_fuzz_session.py

@@ -20,6 +20,7 @@ from hitl_slam.corrections_file import (
     write_corrections,
 )
 from hitl_slam.errors import InputError
+from hitl_slam.io.textfile import MAX_COORDINATE
 
 A = [[1.2, 3.4], [4.1, 3.45]]
 B = [[10.0, 3.9], [13.2, 4.0]]
@@ -172,7 +173,16 @@ def test_write_to_missing_directory_is_an_input_error(tmp_path: Path) -> None:
         write_corrections(tmp_path / "no" / "c.jsonl", [Undo()])
 
 
-coordinate = st.floats(allow_nan=False, allow_infinity=False, width=64)
+def test_write_refuses_what_would_not_read_back(tmp_path: Path) -> None:
+    far = DrawnCorrection.make([[0.0, 0.0], [2e9, 0.0]], B, "collinear")
+    path = tmp_path / "c.jsonl"
+    with pytest.raises(InputError, match=r"step 2 .*1e9") as info:
+        write_corrections(path, [Undo(), Apply(far)])
+    assert str(info.value).startswith(f"{path}: ")
+    assert not path.exists()
+
+
+coordinate = st.floats(min_value=-MAX_COORDINATE, max_value=MAX_COORDINATE, width=64)
 segment = st.tuples(st.tuples(coordinate, coordinate), st.tuples(coordinate, coordinate))
 
 

@@ -25,12 +25,17 @@ from hitl_slam.graph import PoseGraph
 from hitl_slam.io import g2o, toro
 from hitl_slam.io.atomic import atomic_write_text
 from hitl_slam.io.textfile import (
+    ANGLE_LIMIT,
     COMPRESSED_SUFFIXES,
+    COORDINATE_LIMIT,
+    MAX_INFORMATION,
     PathLike,
     RawGraph,
     Syntax,
+    first_beyond,
     input_error,
     read_lines,
+    sci,
 )
 
 __all__ = ["GraphFormat", "LoadReport", "load_graph", "load_graph_with_report", "save_graph"]
@@ -118,7 +123,9 @@ def save_graph(graph: PoseGraph, poses: ArrayLike | None, path: PathLike) -> Non
     file reloads anchored at its first vertex.
 
     Raises:
-        InputError: unsupported extension, arrays that do not fit the graph, or an unwritable path.
+        InputError: unsupported extension, arrays that do not fit the graph, values the reader
+            would refuse (beyond its limits, information not positive definite, vertices not
+            connected to the anchor; nothing is written then), or an unwritable path.
     """
     name = os.fspath(path)
     extension = os.path.splitext(name)[1].lower()
@@ -135,6 +142,7 @@ def save_graph(graph: PoseGraph, poses: ArrayLike | None, path: PathLike) -> Non
     edge_ids = vertex_ids[graph.edges]
     measurements = graph.measurements.copy()
     measurements[:, 2] = _wrap_angle(measurements[:, 2])
+    _check_readable(name, fmt.syntax, out_poses, graph, measurements)
     if fmt is GraphFormat.G2O:
         text = g2o.format_text(
             vertex_ids, out_poses, edge_ids, measurements, graph.information, graph.anchor
@@ -408,12 +416,7 @@ def _chain_poses(
 def _check_connected(
     path: str, ids: list[int], vertex_lines: list[int], edges: NDArray[np.int64], anchor: int
 ) -> None:
-    n = len(ids)
-    if n < 2:
-        return
-    adjacency = coo_array((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
-    _, labels = connected_components(adjacency.tocsr(), directed=False)
-    unreachable = np.flatnonzero(labels != labels[anchor])
+    unreachable = _unreachable(len(ids), edges, anchor)
     if unreachable.size == 0:
         return
     count = int(unreachable.size)
@@ -426,6 +429,79 @@ def _check_connected(
         f"(ids {shown})",
         "add edges linking them, or remove them",
     )
+
+
+def _unreachable(n: int, edges: NDArray[np.int64], anchor: int) -> NDArray[np.int64]:
+    """Rows not connected to ``anchor`` through ``edges``."""
+    if n < 2:
+        return np.zeros(0, dtype=np.int64)
+    adjacency = coo_array((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, labels = connected_components(adjacency.tocsr(), directed=False)
+    return np.flatnonzero(labels != labels[anchor]).astype(np.int64)
+
+
+def _check_readable(
+    name: str,
+    syntax: Syntax,
+    poses: NDArray[np.float64],
+    graph: PoseGraph,
+    measurements: NDArray[np.float64],
+) -> None:
+    """Refuse to write what :func:`load_graph` would refuse to read: values beyond the readers'
+    limits, information that is not positive definite as the file records it (its upper
+    triangle), vertices not connected to the anchor."""
+    position = np.full(3, COORDINATE_LIMIT.bound)
+    position[2] = ANGLE_LIMIT.bound
+    limits = (COORDINATE_LIMIT, COORDINATE_LIMIT, ANGLE_LIMIT)
+    for label, array, fields in (
+        ("pose", poses, ("x", "y", "theta")),
+        ("measurement", measurements, ("dx", "dy", "dtheta")),
+    ):
+        beyond = first_beyond(array, position)
+        if beyond is not None:
+            row, col = beyond
+            raise input_error(
+                name,
+                None,
+                f"cannot write a file hitl-slam could not read back: {label} {row} has "
+                f"{fields[col]} = {float(array[row, col])!r}, {limits[col].what}",
+                "bring the values within the limit before saving",
+            )
+    information = graph.information
+    rows = [r for r, _ in syntax.info_index]
+    cols = [c for _, c in syntax.info_index]
+    recorded = np.zeros_like(information)
+    recorded[:, rows, cols] = information[:, rows, cols]
+    recorded[:, cols, rows] = information[:, rows, cols]
+    flat = recorded.reshape(len(recorded), 9)
+    beyond = first_beyond(flat, np.full(9, MAX_INFORMATION))
+    if beyond is not None:
+        row = beyond[0]
+        raise input_error(
+            name,
+            None,
+            f"cannot write a file hitl-slam could not read back: the information of edge {row} "
+            f"has an entry beyond +/-{sci(MAX_INFORMATION)} (largest {np.abs(flat[row]).max()!r})",
+            "scale the information down (it is the inverse covariance) before saving",
+        )
+    if not _positive_definite(recorded):
+        row = next(k for k in range(len(recorded)) if not _positive_definite(recorded[k]))
+        raise input_error(
+            name,
+            None,
+            f"cannot write a file hitl-slam could not read back: the information of edge {row} is "
+            "not positive definite (the file records its upper triangle)",
+            "give every edge a symmetric positive-definite information matrix",
+        )
+    unreachable = _unreachable(len(poses), graph.edges, graph.anchor)
+    if unreachable.size:
+        raise input_error(
+            name,
+            None,
+            f"cannot write a file hitl-slam could not read back: {unreachable.size} vertices are "
+            f"not connected to the anchor through edges (first row {int(unreachable[0])})",
+            "add edges linking them, or remove them",
+        )
 
 
 def _checked_for_saving(

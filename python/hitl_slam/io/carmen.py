@@ -18,7 +18,19 @@ from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
-from hitl_slam.io.textfile import PathLike, input_error, parse_int, read_lines
+from hitl_slam.io.textfile import (
+    ANGLE_LIMIT,
+    COORDINATE_LIMIT,
+    MAX_COORDINATE,
+    STRICT_FLOAT,
+    Limit,
+    PathLike,
+    input_error,
+    limit_error,
+    parse_int,
+    read_lines,
+    sci,
+)
 from hitl_slam.map import Map
 
 __all__ = ["DEFAULT_MAX_RANGE", "PoseSource", "infer_max_range", "read_carmen"]
@@ -41,6 +53,13 @@ _PILE_MIN = 10
 _PILE_RATIO = 10.0
 _FIX_LINE = "fix the line or delete it"
 _FLASER_TAIL = ("x", "y", "theta", "odom_x", "odom_y", "odom_theta", "ipc_timestamp")
+_RANGE_LIMIT = Limit(
+    MAX_COORDINATE,
+    f"a laser maximum range beyond {sci(MAX_COORDINATE)} m: a unit mistake or a damaged file",
+    "write the range in metres, or fix the line",
+)
+_POSE_LIMITS = (COORDINATE_LIMIT, COORDINATE_LIMIT, ANGLE_LIMIT)
+_FLASER_LIMITS = (*_POSE_LIMITS, *_POSE_LIMITS, None)
 
 # PARAM names read (CARMEN robot module): the front laser's mounting on the robot and its range.
 _OFFSET_PARAMS = (
@@ -49,6 +68,9 @@ _OFFSET_PARAMS = (
     "robot_frontlaser_angular_offset",  # [rad]
 )
 _MAX_RANGE_PARAM = "robot_front_laser_max"
+_PARAM_LIMITS = dict(
+    zip((*_OFFSET_PARAMS, _MAX_RANGE_PARAM), (*_POSE_LIMITS, _RANGE_LIMIT), strict=True)
+)
 
 
 class PoseSource(enum.Enum):
@@ -126,6 +148,11 @@ def read_carmen(
             raise InputError(f"{label} must be a finite number >= 0, got {value!r}")
     if max_range is not None and not (math.isfinite(max_range) and max_range > 0):
         raise InputError(f"max_range must be a finite number > 0 (metres), got {max_range!r}")
+    if max_range is not None and max_range > MAX_COORDINATE:
+        raise InputError(
+            f"max_range {max_range!r} is beyond {sci(MAX_COORDINATE)} m, larger than any laser "
+            "reaches; give the laser's maximum range in metres"
+        )
 
     lines = read_lines(name)
     params, has_robotlaser, skipped = _scan_tags(name, lines)
@@ -282,8 +309,16 @@ def _scan_tags(name: str, lines: Sequence[str]) -> tuple[dict[str, float], bool,
         if tag != "PARAM":
             continue
         tokens = line.split()
-        if len(tokens) >= 3 and (tokens[1] in _OFFSET_PARAMS or tokens[1] == _MAX_RANGE_PARAM):
-            value = _floats(name, number, tokens[2:3], (tokens[1],), "PARAM")[0]
+        if len(tokens) >= 3 and tokens[1] in _PARAM_LIMITS:
+            value = _floats(
+                name,
+                number,
+                tokens[2:3],
+                (tokens[1],),
+                "PARAM",
+                limits=(_PARAM_LIMITS[tokens[1]],),
+                strict=_needs_strict(line),
+            )[0]
             if tokens[1] == _MAX_RANGE_PARAM and value <= 0:
                 raise input_error(
                     name,
@@ -315,13 +350,17 @@ def _no_lasers(name: str, lines: Sequence[str], skipped: dict[str, int]) -> Inpu
     )
 
 
+def _needs_strict(line: str) -> bool:
+    """Whether a line's numbers must be checked one by one: numpy (like float()) reads non-ASCII
+    digits and ``_`` separators, which a log holds only when damaged."""
+    return not line.isascii() or "_" in line
+
+
 def _bad_number(
     name: str, line: int, tokens: Sequence[str], names: Sequence[str], tag: str, first: int
 ) -> InputError:
     for k, token in enumerate(tokens):
-        try:
-            float(token)
-        except ValueError:
+        if not STRICT_FLOAT.fullmatch(token):
             return input_error(
                 name,
                 line,
@@ -332,10 +371,22 @@ def _bad_number(
 
 
 def _floats(
-    name: str, line: int, tokens: Sequence[str], names: Sequence[str], tag: str, first: int = 2
+    name: str,
+    line: int,
+    tokens: Sequence[str],
+    names: Sequence[str],
+    tag: str,
+    first: int = 2,
+    *,
+    limits: Sequence[Limit | None] = (),
+    strict: bool = False,
 ) -> NDArray[np.float64]:
-    """Finite float64 values of ``tokens`` (fields ``first..`` of the line, tag = field 0)."""
+    """Finite float64 values of ``tokens`` (fields ``first..`` of the line, tag = field 0), each
+    within its entry of ``limits`` (None: any finite value); ``strict``: check each token's
+    syntax (see :func:`_needs_strict`)."""
     try:
+        if strict and not all(STRICT_FLOAT.fullmatch(t) for t in tokens):
+            raise ValueError(tokens)
         values = np.array(tokens, dtype=np.float64)
     except ValueError:
         raise _bad_number(name, line, tokens, names, tag, first) from None
@@ -348,14 +399,21 @@ def _floats(
             f"{names[k]} is {tokens[k]!r} (field {first + k} of {tag}): NaN/inf",
             "replace it with a finite number or delete the line",
         )
+    for k, limit in enumerate(limits):
+        if limit is not None and not abs(values[k]) <= limit.bound:
+            raise limit_error(
+                name, line, f"{names[k]} is {tokens[k]!r} (field {first + k} of {tag})", limit
+            )
     return values
 
 
 def _ranges(
-    name: str, line: int, tokens: Sequence[str], tag: str, first: int
+    name: str, line: int, tokens: Sequence[str], tag: str, first: int, strict: bool
 ) -> NDArray[np.float64]:
     """Beam ranges; non-finite ones are allowed here (invalid beams, not points)."""
     try:
+        if strict and not all(STRICT_FLOAT.fullmatch(t) for t in tokens):
+            raise ValueError(tokens)
         return np.array(tokens, dtype=np.float64)
     except ValueError:
         names = [f"range {k + 1}" for k in range(len(tokens))]
@@ -381,14 +439,15 @@ def _parse_lasers(name: str, lines: Sequence[str], laser_tag: str) -> _Scans:
         if _tag(line) != laser_tag:
             continue
         tokens = line.split()
+        strict = _needs_strict(line)
         if laser_tag == "FLASER":
-            _parse_flaser(name, number, tokens, scans)
+            _parse_flaser(name, number, tokens, scans, strict)
         else:
-            _parse_robotlaser(name, number, tokens, scans)
+            _parse_robotlaser(name, number, tokens, scans, strict)
     return scans
 
 
-def _parse_flaser(name: str, number: int, tokens: list[str], scans: _Scans) -> None:
+def _parse_flaser(name: str, number: int, tokens: list[str], scans: _Scans, strict: bool) -> None:
     # FLASER n r_1 .. r_n x y theta odom_x odom_y odom_theta ipc_timestamp ipc_hostname
     # logger_timestamp (CARMEN logger header; x y theta is the laser pose, odom_* the robot's).
     if len(tokens) < 2:
@@ -403,8 +462,17 @@ def _parse_flaser(name: str, number: int, tokens: list[str], scans: _Scans) -> N
             f"got {len(tokens) - 1}",
             "check the number of beams against the ranges, or delete the line",
         )
-    ranges = _ranges(name, number, tokens[2 : 2 + n], "FLASER", 2)
-    tail = _floats(name, number, tokens[2 + n : 9 + n], _FLASER_TAIL, "FLASER", 2 + n)
+    ranges = _ranges(name, number, tokens[2 : 2 + n], "FLASER", 2, strict)
+    tail = _floats(
+        name,
+        number,
+        tokens[2 + n : 9 + n],
+        _FLASER_TAIL,
+        "FLASER",
+        2 + n,
+        limits=_FLASER_LIMITS,
+        strict=strict,
+    )
     start, step = _flaser_geometry(n)
     scans.lines.append(number)
     scans.ranges.append(ranges)
@@ -440,7 +508,13 @@ _RL_TAIL = (
 )
 
 
-def _parse_robotlaser(name: str, number: int, tokens: list[str], scans: _Scans) -> None:
+_RL_HEADER_LIMITS = (None, ANGLE_LIMIT, ANGLE_LIMIT, ANGLE_LIMIT, _RANGE_LIMIT, None, None)
+_RL_TAIL_LIMITS = (*_POSE_LIMITS, *_POSE_LIMITS)
+
+
+def _parse_robotlaser(
+    name: str, number: int, tokens: list[str], scans: _Scans, strict: bool
+) -> None:
     # Layout, as CARMEN's logger writes it (carmen_logwrite_write_robot_laser in
     # logtools/writelog.c) and reads it (carmen_string_to_robot_laser_message in readlog.c):
     # ROBOTLASER1 laser_type start_angle field_of_view angular_resolution maximum_range accuracy
@@ -453,7 +527,16 @@ def _parse_robotlaser(name: str, number: int, tokens: list[str], scans: _Scans) 
         raise input_error(
             name, number, f"ROBOTLASER1 too short ({len(tokens) - 1} fields after the tag)", usage
         )
-    header = _floats(name, number, tokens[1:8], _RL_HEADER, "ROBOTLASER1", 1)
+    header = _floats(
+        name,
+        number,
+        tokens[1:8],
+        _RL_HEADER,
+        "ROBOTLASER1",
+        1,
+        limits=_RL_HEADER_LIMITS,
+        strict=strict,
+    )
     n = _count(name, number, tokens[8], "number of beams", "ROBOTLASER1")
     if len(tokens) < 10 + n:
         raise input_error(
@@ -469,10 +552,17 @@ def _parse_robotlaser(name: str, number: int, tokens: list[str], scans: _Scans) 
             f"got {len(tokens) - 1}",
             usage,
         )
-    ranges = _ranges(name, number, tokens[9 : 9 + n], "ROBOTLASER1", 9)
+    ranges = _ranges(name, number, tokens[9 : 9 + n], "ROBOTLASER1", 9, strict)
     first_tail = 10 + n + m
     tail = _floats(
-        name, number, tokens[first_tail : first_tail + 12], _RL_TAIL, "ROBOTLASER1", first_tail
+        name,
+        number,
+        tokens[first_tail : first_tail + 12],
+        _RL_TAIL,
+        "ROBOTLASER1",
+        first_tail,
+        limits=_RL_TAIL_LIMITS,
+        strict=strict,
     )
     if header[4] <= 0:
         raise input_error(

@@ -8,17 +8,29 @@ from __future__ import annotations
 import logging
 import math
 import os
-import re
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hitl_slam.config import DEFAULT, Config
+from hitl_slam.errors import InputError
 from hitl_slam.io.atomic import atomic_writer
-from hitl_slam.io.textfile import PathLike, input_error, read_lines
+from hitl_slam.io.textfile import (
+    ANGLE_LIMIT,
+    COORDINATE_LIMIT,
+    MAX_COORDINATE,
+    STRICT_FLOAT,
+    Limit,
+    PathLike,
+    first_beyond,
+    input_error,
+    limit_error,
+    read_lines,
+    sci,
+)
 from hitl_slam.map import Map
 
-__all__ = ["COVARS_FIELDS", "read_covars", "write_covars"]
+__all__ = ["COVARS_FIELDS", "MAX_COVARIANCE", "read_covars", "write_covars"]
 
 _log = logging.getLogger(__name__)
 
@@ -42,7 +54,33 @@ COVARS_FIELDS = (
 )
 """The 16 comma-separated numbers of an observation line, in order."""
 
-_NUMBER = re.compile(r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan|inf|infinity)", re.I)
+MAX_COVARIANCE = MAX_COORDINATE**2
+"""Largest |entry| of a pose covariance [m^2, m rad, rad^2]: a standard deviation of
+:data:`~hitl_slam.io.textfile.MAX_COORDINATE`. Sums and inverses of such matrices stay far
+inside float64's range."""
+
+_COVARIANCE_LIMIT = Limit(
+    MAX_COVARIANCE,
+    f"a covariance entry beyond +/-{sci(MAX_COVARIANCE)} (a standard deviation beyond "
+    f"{sci(MAX_COORDINATE)} m): a unit mistake or a damaged file",
+    "write the covariance in metres and radians, or all zeros for an unknown one",
+)
+_NORMAL_LIMIT = Limit(
+    MAX_COORDINATE,
+    f"a normal component beyond +/-{sci(MAX_COORDINATE)} (normals are directions, about 1)",
+    "write a unit normal, or 0, 0 for none",
+)
+_FIELD_LIMITS = (
+    COORDINATE_LIMIT,
+    COORDINATE_LIMIT,
+    ANGLE_LIMIT,
+    COORDINATE_LIMIT,
+    COORDINATE_LIMIT,
+    _NORMAL_LIMIT,
+    _NORMAL_LIMIT,
+    *[_COVARIANCE_LIMIT] * 9,
+)
+_BOUNDS = np.array([limit.bound for limit in _FIELD_LIMITS])
 _USAGE = "16 comma-separated numbers: " + ", ".join(COVARS_FIELDS)
 
 
@@ -82,7 +120,7 @@ def read_covars(path: PathLike, config: Config = DEFAULT) -> Map:
         raise input_error(name, 2, "missing the timestamp line", todo)
     stamp_text = lines[1].strip()
     try:
-        stamp = float(stamp_text) if _NUMBER.fullmatch(stamp_text) else math.nan
+        stamp = float(stamp_text) if STRICT_FLOAT.fullmatch(stamp_text) else math.nan
     except ValueError:  # pragma: no cover - the pattern admits only what float() reads
         stamp = math.nan
     if not math.isfinite(stamp):
@@ -107,7 +145,10 @@ def _parse_rows(name: str, lines: list[str], numbers: list[int]) -> NDArray[np.f
     """``(L, 16)`` values of the observation lines (0-based indices ``numbers`` into ``lines``)."""
     texts = [lines[k] for k in numbers]
     try:
-        # numpy's C parser: strict (no empty fields, no "1 2", no "1_000"), one row per line.
+        # numpy's C parser: strict (no empty fields, no "1 2", no "1_000"), one row per line;
+        # but it reads non-ASCII digits ("\u0663", fullwidth), so such lines are checked alone.
+        if not all(map(str.isascii, texts)):
+            raise ValueError("non-ASCII")
         values = np.loadtxt(texts, delimiter=",", comments=None, dtype=np.float64, ndmin=2)
         if values.shape[1] != 16:
             raise ValueError(values.shape)
@@ -125,6 +166,15 @@ def _parse_rows(name: str, lines: list[str], numbers: list[int]) -> NDArray[np.f
             f"{COVARS_FIELDS[col]} is {float(values[row, col])!r} (field {col + 1}): NaN/inf",
             "replace it with a finite number or delete the line",
         )
+    beyond = first_beyond(values, _BOUNDS)
+    if beyond is not None:
+        row, col = beyond
+        raise limit_error(
+            name,
+            numbers[row] + 1,
+            f"{COVARS_FIELDS[col]} is {float(values[row, col])!r} (field {col + 1})",
+            _FIELD_LIMITS[col],
+        )
     return values
 
 
@@ -133,7 +183,7 @@ def _check_line(name: str, line: int, text: str) -> list[float]:
     if len(tokens) != 16:
         raise input_error(name, line, f"expected {_USAGE}; got {len(tokens)} fields", _fix())
     for k, token in enumerate(tokens):
-        if not _NUMBER.fullmatch(token):
+        if not STRICT_FLOAT.fullmatch(token):
             raise input_error(
                 name,
                 line,
@@ -230,7 +280,8 @@ def write_covars(map: Map, poses: ArrayLike, path: PathLike) -> None:
     written with its theta moved by one ulp so the file reads back with the same number of poses.
 
     Raises:
-        InputError: ``poses`` of the wrong shape or not finite.
+        InputError: ``poses`` of the wrong shape or not finite, or values :func:`read_covars`
+            would refuse (beyond its limits; nothing is written then).
     """
     name = os.fspath(path)
     out_poses = map.checked_poses(poses)
@@ -249,6 +300,7 @@ def write_covars(map: Map, poses: ArrayLike, path: PathLike) -> None:
         [c * normals[:, 0] - s * normals[:, 1], s * normals[:, 0] + c * normals[:, 1]], axis=1
     )
     written = _distinct_consecutive(out_poses)
+    _check_writable(name, written, world, world_normals, cov)
     title = " ".join(map.name.split()) or "map"
     point_rows = np.hstack([world, world_normals]).tolist()
     offsets = map.offsets.tolist()
@@ -266,6 +318,31 @@ def write_covars(map: Map, poses: ArrayLike, path: PathLike) -> None:
                     f"{head}{x!r}, {y!r}, {nx!r}, {ny!r}{tail}"
                     for x, y, nx, ny in point_rows[start:stop]
                 )
+            )
+
+
+def _check_writable(
+    name: str,
+    poses: NDArray[np.float64],
+    world: NDArray[np.float64],
+    normals: NDArray[np.float64],
+    cov: NDArray[np.float64],
+) -> None:
+    """Refuse values :func:`read_covars` would refuse, so that what is written reads back."""
+    for label, array, columns in (
+        ("pose", poses, (0, 1, 2)),
+        ("observation", world, (3, 4)),
+        ("normal", normals, (5, 6)),
+        ("covariance", cov, tuple(range(7, 16))),
+    ):
+        beyond = first_beyond(array, _BOUNDS[list(columns)])
+        if beyond is not None:
+            row, col = beyond
+            field = columns[col]
+            raise InputError(
+                f"{name}: cannot write a file hitl-slam could not read back: {label} {row} has "
+                f"{COVARS_FIELDS[field]} = {float(array[row, col])!r}, "
+                f"{_FIELD_LIMITS[field].what}; bring the values within the limit before saving"
             )
 
 

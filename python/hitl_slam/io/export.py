@@ -70,7 +70,11 @@ def write_tum(map: Map, poses: ArrayLike, path: PathLike) -> None:
 
 def write_g2o_map(map: Map, poses: ArrayLike, path: PathLike) -> None:
     """Write the map's pose graph (its ORIGINAL factors) with ``poses`` as ``VERTEX_SE2`` /
-    ``EDGE_SE2`` lines (see :func:`hitl_slam.io.save_graph`; ``.graph`` gives TORO)."""
+    ``EDGE_SE2`` lines (see :func:`hitl_slam.io.save_graph`; ``.graph`` gives TORO).
+
+    What is written reads back with :func:`hitl_slam.io.load_graph`: values its reader would
+    refuse (e.g. a step between consecutive poses beyond 1e9 m) are an InputError instead, and
+    nothing is written."""
     out = map.checked_poses(poses)
     save_graph(map.pose_graph(out), out, path)
 

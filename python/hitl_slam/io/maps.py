@@ -9,6 +9,7 @@ import os
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
+from hitl_slam.io.textfile import check_regular_file
 from hitl_slam.map import Map
 
 __all__ = ["MAP_EXTENSIONS", "load_map"]
@@ -61,6 +62,7 @@ def load_map(
     if not compression and extension == ".hitl":
         from hitl_slam.session import Session
 
+        check_regular_file(name, missing_ok=True)
         with Session.open(name) as session:
             return session.current_map()
     supported = ", ".join(MAP_EXTENSIONS)

@@ -13,11 +13,21 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hitl_slam.errors import InputError
-from hitl_slam.io.textfile import PathLike, input_error, read_lines
+from hitl_slam.io.textfile import (
+    ANGLE_LIMIT,
+    COORDINATE_LIMIT,
+    STRICT_FLOAT,
+    PathLike,
+    input_error,
+    limit_error,
+    read_lines,
+)
 
 __all__ = ["Relations", "match_relations", "read_relations"]
 
 _FIELDS = ("t1", "t2", "dx", "dy", "dz", "roll", "pitch", "yaw")
+# dx, dy, dz in metres, the angles in radians; the timestamps only need to be finite.
+_LIMITS = (None, None, *[COORDINATE_LIMIT] * 3, *[ANGLE_LIMIT] * 3)
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,7 +57,8 @@ def read_relations(path: PathLike) -> Relations:
 
     Raises:
         InputError: ``{path}:{line}: what; what to do`` for a line without 8 numbers, a bad or
-            non-finite number, or a file without relations.
+            non-finite number, a displacement beyond +/-1e9 m or an angle beyond +/-1e6 rad (the
+            readers' limits), or a file without relations.
     """
     name = os.fspath(path)
     rows: list[list[float]] = []
@@ -66,7 +77,7 @@ def read_relations(path: PathLike) -> Relations:
         values: list[float] = []
         for k, token in enumerate(tokens):
             try:
-                value = float(token) if token.isascii() and "_" not in token else math.nan
+                value = float(token) if STRICT_FLOAT.fullmatch(token) else math.nan
             except ValueError:
                 value = math.nan
             if not math.isfinite(value):
@@ -76,6 +87,9 @@ def read_relations(path: PathLike) -> Relations:
                     f"bad number {token!r} for {_FIELDS[k]} (field {k + 1})",
                     "write a finite decimal number such as 1.5 or -2e-3",
                 )
+            limit = _LIMITS[k]
+            if limit is not None and not abs(value) <= limit.bound:
+                raise limit_error(name, number, f"{_FIELDS[k]} is {token!r} (field {k + 1})", limit)
             values.append(value)
         rows.append(values)
         numbers.append(number)

@@ -11,6 +11,7 @@ import gzip
 import math
 import os
 import re
+import stat
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -21,18 +22,26 @@ from numpy.typing import NDArray
 from hitl_slam.errors import InputError
 
 __all__ = [
+    "ANGLE_LIMIT",
     "COMPRESSED_SUFFIXES",
+    "COORDINATE_LIMIT",
     "MAX_ANGLE",
     "MAX_COORDINATE",
     "MAX_INFORMATION",
+    "STRICT_FLOAT",
+    "Limit",
     "PathLike",
     "RawGraph",
     "Syntax",
+    "check_regular_file",
+    "first_beyond",
     "format_graph",
     "input_error",
+    "limit_error",
     "parse_int",
     "parse_tagged_lines",
     "read_lines",
+    "sci",
 ]
 
 PathLike = str | os.PathLike[str]
@@ -42,9 +51,11 @@ COMPRESSED_SUFFIXES = frozenset({".gz", ".bz2"})
 _INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
 # float() also accepts "1_000" and non-ASCII digits; a pose graph that contains them is more likely
 # corrupted than meant, so lines holding either are checked token by token against this grammar.
-_STRICT_FLOAT = re.compile(
+STRICT_FLOAT = re.compile(
     r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan|inf|infinity)", re.ASCII | re.IGNORECASE
 )
+"""A decimal number as the text readers accept it: ASCII digits only, no ``_`` separators (both
+of which Python's and numpy's float parsing would take)."""
 _FIX_LINE = "fix the line or delete it"
 
 # Largest magnitudes the readers accept. A finite value can still be unusable: the solver squares
@@ -75,7 +86,7 @@ angle this large is in the wrong unit or damaged, not a heading."""
 
 
 @dataclass(frozen=True)
-class _Limit:
+class Limit:
     """The largest magnitude a field may have, and the message parts for one that exceeds it."""
 
     bound: float
@@ -83,31 +94,32 @@ class _Limit:
     todo: str
 
 
-def _sci(value: float) -> str:
+def sci(value: float) -> str:
+    """``1e9``, not Python's ``1e+09``: how limits are written in messages."""
     mantissa, exponent = f"{value:.0e}".split("e")  # 1e9, not Python's 1e+09
     return f"{mantissa}e{int(exponent)}"
 
 
-_COORDINATE_LIMIT = _Limit(
+COORDINATE_LIMIT = Limit(
     MAX_COORDINATE,
-    f"a coordinate beyond +/-{_sci(MAX_COORDINATE)} m, larger than any map (a unit mistake or a "
+    f"a coordinate beyond +/-{sci(MAX_COORDINATE)} m, larger than any map (a unit mistake or a "
     "damaged file)",
     "write positions and translations in metres, or fix the line",
 )
-_ANGLE_LIMIT = _Limit(
+ANGLE_LIMIT = Limit(
     MAX_ANGLE,
-    f"an angle beyond +/-{_sci(MAX_ANGLE)} rad (160,000 turns): a unit mistake or a damaged "
+    f"an angle beyond +/-{sci(MAX_ANGLE)} rad (160,000 turns): a unit mistake or a damaged "
     "file, not a heading",
     "write angles in radians, preferably within (-pi, pi], or fix the line",
 )
-_POSE_LIMITS = (_COORDINATE_LIMIT, _COORDINATE_LIMIT, _ANGLE_LIMIT)
+_POSE_LIMITS = (COORDINATE_LIMIT, COORDINATE_LIMIT, ANGLE_LIMIT)
 
 
-def _information_limit(syntax: Syntax) -> _Limit:
+def _information_limit(syntax: Syntax) -> Limit:
     fix = ", or hold a vertex still with a FIX line" if "FIX" in syntax.extra_tags else ""
-    return _Limit(
+    return Limit(
         MAX_INFORMATION,
-        f"an information entry beyond +/-{_sci(MAX_INFORMATION)}, too large for the solver to "
+        f"an information entry beyond +/-{sci(MAX_INFORMATION)}, too large for the solver to "
         "weight squared residuals with in float64 (they overflow to inf)",
         "for an edge meant to be exact write a large but sane weight such as 1e12 (information "
         f"is the inverse covariance){fix}",
@@ -118,6 +130,64 @@ def input_error(path: str, line: int | None, what: str, todo: str) -> InputError
     """The one place messages are shaped: ``{path}:{line}: {what is wrong}; {what to do}``."""
     where = path if line is None else f"{path}:{line}"
     return InputError(f"{where}: {what}; {todo}")
+
+
+def limit_error(path: str, line: int | None, what: str, limit: Limit) -> InputError:
+    """``what`` (e.g. ``"x is '1e300' (field 2)"``) is beyond ``limit``."""
+    return input_error(path, line, f"{what}: {limit.what}", limit.todo)
+
+
+def first_beyond(
+    values: NDArray[np.float64], bounds: NDArray[np.float64]
+) -> tuple[int, int] | None:
+    """``(row, column)`` of the first entry of the 2D ``values`` whose magnitude exceeds its
+    column's bound (NaN counts as beyond), or None when every entry is within."""
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.abs(values) <= bounds)
+    if not bad.any():
+        return None
+    row, column = np.argwhere(bad)[0]
+    return int(row), int(column)
+
+
+_NOT_REGULAR = (
+    (stat.S_ISFIFO, "a FIFO (named pipe)"),
+    (stat.S_ISSOCK, "a socket"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+)
+
+
+def check_regular_file(path: PathLike, *, missing_ok: bool = False) -> None:
+    """Refuse, before opening it, anything but a regular file (or a symlink to one): reading a
+    FIFO waits for a writer forever, a device never ends. Missing files and directories get their
+    own messages (``missing_ok``: a missing file passes, for a caller with its own message)."""
+    name = os.fspath(path)
+    try:
+        mode = os.stat(name).st_mode
+    except FileNotFoundError:
+        if missing_ok:
+            return
+        raise input_error(
+            name, None, "no such file", "check the path and the working directory"
+        ) from None
+    except PermissionError:
+        raise input_error(name, None, "permission denied", "make the file readable") from None
+    except (OSError, ValueError) as exc:
+        raise input_error(
+            name, None, f"cannot be read ({exc})", "check the path and the file"
+        ) from None
+    if stat.S_ISREG(mode):
+        return
+    if stat.S_ISDIR(mode):
+        raise input_error(name, None, "is a directory, not a file", "give the path of a file")
+    kind = next((label for test, label in _NOT_REGULAR if test(mode)), "a special file")
+    raise input_error(
+        name,
+        None,
+        f"is {kind}, not a regular file (reading it could wait forever)",
+        "save the data to a regular file and give its path",
+    )
 
 
 def _read_bytes(name: str, suffix: str) -> bytes:
@@ -138,6 +208,7 @@ def read_lines(path: PathLike) -> list[str]:
     """
     name = os.fspath(path)
     compressed = os.path.splitext(name)[1].lower()
+    check_regular_file(name)
     try:
         data = _read_bytes(name, compressed)
     except FileNotFoundError:
@@ -150,7 +221,7 @@ def read_lines(path: PathLike) -> list[str]:
         ) from None
     except PermissionError:
         raise input_error(name, None, "permission denied", "make the file readable") from None
-    except (OSError, EOFError, zlib.error) as exc:
+    except (OSError, EOFError, zlib.error, ValueError) as exc:
         what = "cannot be decompressed" if compressed in COMPRESSED_SUFFIXES else "cannot be read"
         raise input_error(
             name, None, f"{what} ({exc})", "check that the file is complete and not damaged"
@@ -191,7 +262,7 @@ def _parse_floats(
     names: Sequence[str],
     tag: str,
     strict: bool,
-    limits: Sequence[_Limit],
+    limits: Sequence[Limit],
 ) -> list[float]:
     # The values are the last len(names) tokens; messages number fields with the tag as field 0.
     offset = len(tokens) - len(names)
@@ -202,7 +273,7 @@ def _parse_floats(
         values = None
     if values is None or strict:
         for k, token in enumerate(tokens[offset:]):
-            if not _STRICT_FLOAT.fullmatch(token):
+            if not STRICT_FLOAT.fullmatch(token):
                 raise input_error(
                     path,
                     line,
