@@ -403,3 +403,15 @@ def test_the_recover_command_copies_the_last_good_checkpoint(
     assert main(["recover", str(path), "-o", str(recovered)]) == 2
     assert "exists" in capsys.readouterr().err
     assert recovered.read_bytes() == copy
+
+
+def test_a_damaged_schema_text_is_a_damaged_file_not_a_decode_error(tmp_path: Path) -> None:
+    """Found by the session fuzz harness: a byte of the stored schema (its CREATE TABLE text)
+    turned into invalid UTF-8 made SQLite's first statement raise UnicodeDecodeError."""
+    path = tmp_path / "s.hitl"
+    a_session(path)
+    data = path.read_bytes()
+    at = data.index(b"time REAL NOT NULL") + len(b"time REAL NOT ")
+    path.write_bytes(data[:at] + b"\x80" + data[at + 1 :])
+    with pytest.raises(InputError, match="damaged"):
+        Session.open(path, applier=fake_applier)

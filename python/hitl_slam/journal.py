@@ -488,13 +488,13 @@ class Journal:
                 problems = ["ok"]
                 if check:
                     problems = [r[0] for r in connection.execute("PRAGMA quick_check(5)")]
-            except sqlite3.DatabaseError as exc:
+            except (sqlite3.DatabaseError, UnicodeDecodeError) as exc:
                 problems = [str(exc)]
             if problems != ["ok"]:
                 raise _corrupt(where, "SQLite integrity check: " + "; ".join(map(str, problems)))
             try:
                 journal = cls(connection, where, version)
-            except sqlite3.DatabaseError as exc:
+            except (sqlite3.DatabaseError, UnicodeDecodeError) as exc:
                 raise _corrupt(where, str(exc)) from None
             if version < SCHEMA_VERSION:
                 _log.warning(
@@ -507,7 +507,7 @@ class Journal:
         except DamagedSession:
             connection.close()
             raise
-        except sqlite3.DatabaseError as exc:
+        except (sqlite3.DatabaseError, UnicodeDecodeError) as exc:
             connection.close()
             raise InputError(
                 f"{where}: not a hitl-slam session file ({exc}); give a .hitl file written by "
@@ -561,7 +561,7 @@ class Journal:
                 stored = self._connection.execute(
                     f"SELECT name, npy{sha} FROM map_arrays"
                 ).fetchall()
-        except sqlite3.Error as exc:
+        except (sqlite3.Error, UnicodeDecodeError) as exc:
             raise _corrupt(where, str(exc)) from None
         if row is None:
             raise _corrupt(where, "no map")
@@ -634,7 +634,7 @@ class Journal:
                 row = self._connection.execute(
                     "SELECT json" + (", sha256" if checked else "") + " FROM config WHERE id = 1"
                 ).fetchone()
-        except sqlite3.Error as exc:
+        except (sqlite3.Error, UnicodeDecodeError) as exc:
             raise _corrupt(where, str(exc)) from None
         if row is None:
             raise _corrupt(where, "no configuration")
@@ -689,7 +689,7 @@ class Journal:
                         if odd:
                             yield _corrupt(where, f"event {expected} is missing", expected)
                         return
-            except sqlite3.Error as exc:
+            except (sqlite3.Error, UnicodeDecodeError) as exc:
                 yield _corrupt(where, f"event {expected} is unreadable: {exc}", expected)
                 return
             seq, stamp, kind, payload, poses = row[:5]
@@ -874,7 +874,7 @@ class Journal:
                 f"SELECT {column} FROM events WHERE seq = ?", (seq,)
             ).fetchone()
             last = connection.execute("SELECT max(seq) FROM events").fetchone()[0]
-        except sqlite3.Error as exc:
+        except (sqlite3.Error, UnicodeDecodeError) as exc:
             self._read_only = f"a write failed ({first}) and the file cannot be read ({exc})"
             _log.error("%s: %s", where, self._read_only)
             return False
