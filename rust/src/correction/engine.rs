@@ -307,6 +307,15 @@ mod tests {
         (graph, truth, a, b)
     }
 
+    fn weights() -> HumanWeights {
+        HumanWeights {
+            sigma_f: 0.03,
+            k1: 1e6,
+            k2: 1e7,
+            average_points: false,
+        }
+    }
+
     fn params() -> SolverParams {
         SolverParams {
             watchdog_steps: 0,
@@ -318,12 +327,7 @@ mod tests {
     fn repeated_structures_reuse_their_analysis_and_give_the_same_answer() {
         let (graph, truth, a, b) = two_laps();
         let mut engine = CorrectionEngine::new(graph).unwrap();
-        let w = HumanWeights {
-            sigma_f: 0.03,
-            k1: 1e6,
-            k2: 1e7,
-            average_points: false,
-        };
+        let w = weights();
         let c = CorrectionSpec {
             mode: RelationMode::Colocation,
             a,
@@ -368,12 +372,7 @@ mod tests {
     fn a_bad_correction_is_refused_and_changes_nothing() {
         let (graph, truth, a, _) = two_laps();
         let mut engine = CorrectionEngine::new(graph).unwrap();
-        let w = HumanWeights {
-            sigma_f: 0.03,
-            k1: 1e6,
-            k2: 1e7,
-            average_points: false,
-        };
+        let w = weights();
         let bad = CorrectionSpec {
             mode: RelationMode::Collinear,
             a: a.clone(),

@@ -1,12 +1,11 @@
 //! `_core.CorrectionEngine`: the map's relative-pose factors held once, joint solves with human
 //! corrections on top, re-using recent symbolic analyses (see `correction::engine`).
 
-use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
+use numpy::{PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::prelude::*;
 
 use super::{
-    group_by_pose, guarded, input_err, parse_method, parse_robust, poses_out, read_poses, to_py,
+    group_by_pose, guarded, input_err, parse_method, parse_robust, read_poses, solved_out, to_py,
     PyGraph, PySolveReport,
 };
 use crate::correction::{CorrectionEngine, CorrectionSpec, HumanWeights};
@@ -140,15 +139,7 @@ impl PyCorrectionEngine {
         let (values, report) = py
             .detach(|| guarded(|| engine.solve(start, &specs, &weights, &params)))
             .map_err(|e| to_py(py, e))?;
-        let flat: Vec<f64> = values.lines.iter().flat_map(|v| [v.phi, v.rho]).collect();
-        let nl = values.lines.len();
-        let lines =
-            Array2::from_shape_vec((nl, 2), flat).unwrap_or_else(|_| Array2::zeros((nl, 2)));
-        Ok((
-            poses_out(py, &values),
-            lines.into_pyarray(py),
-            PySolveReport::new(py, report),
-        ))
+        Ok(solved_out(py, &values, report))
     }
 
     fn __repr__(&self) -> String {

@@ -122,6 +122,28 @@ pub(super) fn poses_out<'py>(py: Python<'py>, values: &Values) -> Bound<'py, PyA
         .into_pyarray(py)
 }
 
+/// A solve's answer for Python: poses `(N, 3)`, lines `(L, 2)` rows `(phi, rho)`, the report.
+#[allow(clippy::type_complexity)]
+pub(super) fn solved_out<'py>(
+    py: Python<'py>,
+    values: &Values,
+    report: SolveReport,
+) -> (
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    PySolveReport,
+) {
+    let flat: Vec<f64> = values.lines.iter().flat_map(|v| [v.phi, v.rho]).collect();
+    let nl = values.lines.len();
+    // Shape (L, 2) always matches the buffer length, so this cannot fail.
+    let lines = Array2::from_shape_vec((nl, 2), flat).unwrap_or_else(|_| Array2::zeros((nl, 2)));
+    (
+        poses_out(py, values),
+        lines.into_pyarray(py),
+        PySolveReport::new(py, report),
+    )
+}
+
 fn read_info(m: numpy::ndarray::ArrayView2<'_, f64>) -> [[f64; 3]; 3] {
     [
         [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
@@ -544,15 +566,7 @@ impl PyGraph {
         let report = py
             .detach(|| guarded(|| solver::optimize(graph, &mut values, &params)))
             .map_err(|e| to_py(py, e))?;
-        let flat: Vec<f64> = values.lines.iter().flat_map(|v| [v.phi, v.rho]).collect();
-        let nl = values.lines.len();
-        let lines_out =
-            Array2::from_shape_vec((nl, 2), flat).unwrap_or_else(|_| Array2::zeros((nl, 2)));
-        Ok((
-            poses_out(py, &values),
-            lines_out.into_pyarray(py),
-            PySolveReport::new(py, report),
-        ))
+        Ok(solved_out(py, &values, report))
     }
 
     fn __repr__(&self) -> String {
