@@ -28,6 +28,13 @@ pub fn rotate(c: f64, s: f64, v: [f64; 2]) -> [f64; 2] {
     [c * v[0] - s * v[1], s * v[0] + c * v[1]]
 }
 
+/// `R v + t` with `R = [[c, -s], [s, c]]`: a point moved by a pose whose cosine and sine were
+/// computed once for many points (scans, observation sets).
+#[inline]
+pub fn transform(c: f64, s: f64, t: [f64; 2], v: [f64; 2]) -> [f64; 2] {
+    [c * v[0] - s * v[1] + t[0], s * v[0] + c * v[1] + t[1]]
+}
+
 /// `[[c, s], [-s, c]] * v`, the inverse rotation.
 #[inline]
 pub fn rotate_inv(c: f64, s: f64, v: [f64; 2]) -> [f64; 2] {

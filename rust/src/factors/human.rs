@@ -18,6 +18,7 @@ use std::f64::consts::{FRAC_PI_2, PI};
 
 use super::Factor;
 use crate::error::{input, Result};
+use crate::se2::transform;
 use crate::values::{Key, Values};
 
 /// The relation a person asserts between two features.
@@ -124,8 +125,7 @@ impl Factor for PointsToLineFactor {
         let (c, s) = x.cos_sin();
         let (cp, sp) = (l.phi.cos(), l.phi.sin());
         for (out, p) in r.iter_mut().zip(&self.points) {
-            let wx = c * p[0] - s * p[1] + x.x;
-            let wy = s * p[0] + c * p[1] + x.y;
+            let [wx, wy] = transform(c, s, [x.x, x.y], *p);
             *out = self.weight * (cp * wx + sp * wy - l.rho);
         }
     }
@@ -140,8 +140,7 @@ impl Factor for PointsToLineFactor {
         let k = self.points.len();
         let (jp, jl) = jacobians.split_at_mut(3 * k);
         for (row, p) in self.points.iter().enumerate() {
-            let wx = c * p[0] - s * p[1] + x.x;
-            let wy = s * p[0] + c * p[1] + x.y;
+            let [wx, wy] = transform(c, s, [x.x, x.y], *p);
             r[row] = self.weight * (cp * wx + sp * wy - l.rho);
             // d/dtheta: n^T R S p = nr . (-p_y, p_x)
             jp[3 * row] = self.weight * nr[0];

@@ -15,7 +15,7 @@ use rstar::RTree;
 
 use crate::error::{HitlError, Result};
 use crate::geometry::{principal_normal, weighted_scatter};
-use crate::se2::wrap_angle;
+use crate::se2::{transform, wrap_angle};
 
 /// How scans are matched.
 #[derive(Clone, Debug)]
@@ -147,7 +147,7 @@ impl Reference {
             .iter()
             .step_by(stride)
             .filter(|p| {
-                let q = [c * p[0] - s * p[1] + pose[0], s * p[0] + c * p[1] + pose[1]];
+                let q = transform(c, s, [pose[0], pose[1]], **p);
                 self.nearest(q).1 <= gate * gate
             })
             .count()

@@ -20,6 +20,7 @@ pub use grid::{candidates, candidates_brute_force, GridIndex};
 pub use snap::{snap, Snap, SnapParams};
 
 use crate::error::{HitlError, Result};
+use crate::se2::transform;
 
 /// A point of the plane, `[x, y]`, world frame unless said otherwise.
 pub use crate::geometry::Point;
@@ -234,7 +235,7 @@ fn world_points_where(
                 continue;
             }
             for (k, p) in block.chunks_exact(2).enumerate() {
-                let world = [c * p[0] - s * p[1] + x, s * p[0] + c * p[1] + y];
+                let world = transform(c, s, [x, y], [p[0], p[1]]);
                 bounds.add(world);
                 out.extend_from_slice(&world);
                 rows.push(start + k);

@@ -6,6 +6,7 @@ use rayon::prelude::*;
 
 use super::grid::Grid;
 use crate::error::{HitlError, Result};
+use crate::se2::transform;
 
 /// The pairwise form is quadratic in the number of scans; beyond this, use the counter form.
 pub const MAX_PAIRWISE_SCANS: usize = 2000;
@@ -174,7 +175,7 @@ fn to_world(pose: [f64; 3], local: &[f64], out: &mut Vec<[f64; 2]>) {
     out.extend(
         local
             .chunks_exact(2)
-            .map(|p| [c * p[0] - s * p[1] + pose[0], s * p[0] + c * p[1] + pose[1]]),
+            .map(|p| transform(c, s, [pose[0], pose[1]], [p[0], p[1]])),
     );
 }
 
