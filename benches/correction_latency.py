@@ -69,8 +69,8 @@ def _forget_analyses() -> None:
     session does (the engine keeps the analyses of recent structures, which would make every
     repeat after the first a cache hit). Builds without an engine have nothing to forget."""
     engines = getattr(pipeline, "_ENGINES", {})
-    for _, engine in engines.values():
-        engine.clear_cache()
+    for entry in engines.values():
+        entry[1].clear_cache()
 
 
 STATES: dict[str, tuple[FloatArray, list[Interpretation], DrawnCorrection]] = {}

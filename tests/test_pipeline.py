@@ -328,3 +328,35 @@ def test_joint_solve_takes_robust_kernels_per_edge_class(world: World, robust: s
 def test_config_refuses_an_unknown_edge_class() -> None:
     with pytest.raises(InputError, match="unknown edge class"):
         DEFAULT.replace(robust="wheels=huber")
+
+
+def test_threads_solving_on_one_map_take_turns(world: World) -> None:
+    """The correction engine releases the GIL while it solves; a second thread entering the
+    same map's engine got RuntimeError('Already borrowed'). Calls are serialized per map, and
+    every thread gets the answer a lone call gives."""
+    import threading
+
+    (wa, la, ha, xa), (wb, lb, hb, xb) = CASES[Mode.COLLINEAR]
+    h = _interpretation(
+        world, Mode.COLLINEAR, _rows(world, wa, la, ha, xa), _rows(world, wb, lb, hb, xb)
+    )
+    moved, _ = explicit_and_backpropagate(world.map, world.map.poses, h)
+    alone, _, _ = solve_all(world.map, [h], DEFAULT, moved)
+    results: list[FloatArray] = []
+    errors: list[BaseException] = []
+
+    def run() -> None:
+        for _ in range(4):
+            try:
+                results.append(solve_all(world.map, [h], DEFAULT, moved)[0])
+            except BaseException as exc:  # the test reports whatever a thread met
+                errors.append(exc)
+
+    threads = [threading.Thread(target=run) for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert errors == []
+    assert len(results) == 12
+    assert all(np.array_equal(r, alone) for r in results)

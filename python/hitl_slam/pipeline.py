@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import threading
 import time
 import weakref
 from collections.abc import Sequence
@@ -34,6 +35,7 @@ __all__ = [
     "apply_correction",
     "chain_variances",
     "correction_engine",
+    "engine_lock",
     "explicit_and_backpropagate",
     "solve_all",
 ]
@@ -128,19 +130,34 @@ def _observations(map: Map, rows: NDArray[np.int64]) -> tuple[NDArray[np.int64],
 def correction_engine(map: Map) -> _core.CorrectionEngine:
     """The correction engine of ``map``: its relative-pose factors, held once per map object,
     with the symbolic analyses of the structures it solved recently (undo, redo and the guards'
-    second solve of one drawing return to structures seen a moment ago)."""
+    second solve of one drawing return to structures seen a moment ago). One call at a time:
+    use it under :func:`engine_lock` (the engine releases the GIL while it solves, and a second
+    thread entering it would get "Already borrowed")."""
+    return _engine_entry(map)[1]
+
+
+def engine_lock(map: Map) -> threading.Lock:
+    """The lock that serializes calls into ``map``'s correction engine."""
+    return _engine_entry(map)[2]
+
+
+_Entry = tuple[weakref.ref[Map], _core.CorrectionEngine, threading.Lock]
+_ENGINES: dict[int, _Entry] = {}
+_ENGINES_LOCK = threading.Lock()
+
+
+def _engine_entry(map: Map) -> _Entry:
     key = id(map)
-    hit = _ENGINES.get(key)
-    if hit is not None and hit[0]() is map:
-        return hit[1]
-    engine = _core.CorrectionEngine(
-        map.num_poses, map.edges, map.measurements, map.information, map.anchor
-    )
-    _ENGINES[key] = (weakref.ref(map, partial(_forget, _ENGINES, key)), engine)
-    return engine
-
-
-_ENGINES: dict[int, tuple[weakref.ref[Map], _core.CorrectionEngine]] = {}
+    with _ENGINES_LOCK:
+        hit = _ENGINES.get(key)
+        if hit is not None and hit[0]() is map:
+            return hit
+        engine = _core.CorrectionEngine(
+            map.num_poses, map.edges, map.measurements, map.information, map.anchor
+        )
+        entry = (weakref.ref(map, partial(_forget, _ENGINES, key)), engine, threading.Lock())
+        _ENGINES[key] = entry
+        return entry
 
 
 def solve_all(
@@ -156,23 +173,25 @@ def solve_all(
     corrections = [
         (h.mode.value, *_observations(map, h.s_a), *_observations(map, h.s_b)) for h in active
     ]
-    return correction_engine(map).solve(
-        x0,
-        corrections,
-        sigma_f=config.sigma_f,
-        k1=config.k1,
-        k2=config.k2,
-        average_points=config.average_points,
-        max_iterations=config.max_iterations,
-        relative_tolerance=config.relative_tolerance,
-        absolute_tolerance=config.absolute_tolerance,
-        robust=robust_pairs(config.robust),
-        # The start is the explicit correction and its back-propagation: a trust region stays in
-        # its basin. The watchdog's Gauss-Newton jumps (for starts off by radians) found other,
-        # lower-cost basins here that fit the drawings worse (Freiburg 079 in the evaluation:
-        # mean angle error 1.75 -> 2.75 deg with it).
-        watchdog_steps=0,
-    )
+    _, engine, lock = _engine_entry(map)
+    with lock:
+        return engine.solve(
+            x0,
+            corrections,
+            sigma_f=config.sigma_f,
+            k1=config.k1,
+            k2=config.k2,
+            average_points=config.average_points,
+            max_iterations=config.max_iterations,
+            relative_tolerance=config.relative_tolerance,
+            absolute_tolerance=config.absolute_tolerance,
+            robust=robust_pairs(config.robust),
+            # The start is the explicit correction and its back-propagation: a trust region
+            # stays in its basin. The watchdog's Gauss-Newton jumps (for starts off by radians)
+            # found other, lower-cost basins here that fit the drawings worse (Freiburg 079 in
+            # the evaluation: mean angle error 1.75 -> 2.75 deg with it).
+            watchdog_steps=0,
+        )
 
 
 def explicit_and_backpropagate(
@@ -196,8 +215,9 @@ def explicit_and_backpropagate(
 def _graph_chi2(map: Map, *poses: FloatArray) -> list[float]:
     """chi2 of the map's relative-pose factors alone (the robot's measurements) at each of
     ``poses`` (one graph built for all)."""
-    engine = correction_engine(map)
-    return [float(engine.base_chi2(np.ascontiguousarray(p, dtype=np.float64))) for p in poses]
+    _, engine, lock = _engine_entry(map)
+    with lock:
+        return [float(engine.base_chi2(np.ascontiguousarray(p, dtype=np.float64))) for p in poses]
 
 
 def _stretch(map: Map, poses: FloatArray, rows: NDArray[np.int64]) -> float:
