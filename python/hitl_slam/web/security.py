@@ -132,6 +132,21 @@ def _header(scope: Scope, name: bytes) -> str | None:
     return None
 
 
+def _replaying(body: bytes, receive: Receive) -> Receive:
+    """A ``receive`` that hands the app the body already read, once, then defers to the
+    server's (disconnects)."""
+    delivered = False
+
+    async def replay() -> Message:
+        nonlocal delivered
+        if not delivered:
+            delivered = True
+            return {"type": "http.request", "body": body, "more_body": False}
+        return await receive()
+
+    return replay
+
+
 async def _refuse(send: Send, status: int, detail: Any, close: bool = False) -> None:
     body = json.dumps({"detail": detail}).encode("utf-8")
     headers = [
@@ -419,16 +434,7 @@ class BodyLimit:
             if not message.get("more_body", False):
                 break
         body = b"".join(chunks)
-        delivered = False
-
-        async def replay() -> Message:
-            nonlocal delivered
-            if not delivered:
-                delivered = True
-                return {"type": "http.request", "body": body, "more_body": False}
-            return await receive()
-
-        await self.app(scope, replay, send)
+        await self.app(scope, _replaying(body, receive), send)
 
 
 class _BodyError(Exception):
@@ -552,13 +558,4 @@ class JsonBodyCheck:
             except _BodyError as exc:
                 await _refuse(send, exc.status, exc.detail)
                 return
-        delivered = False
-
-        async def replay() -> Message:
-            nonlocal delivered
-            if not delivered:
-                delivered = True
-                return {"type": "http.request", "body": body, "more_body": False}
-            return await receive()
-
-        await self.app(scope, replay, send)
+        await self.app(scope, _replaying(body, receive), send)
