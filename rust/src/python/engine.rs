@@ -5,8 +5,8 @@ use numpy::{PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::prelude::*;
 
 use super::{
-    group_by_pose, guarded, input_err, parse_method, parse_robust, read_poses, solved_out, to_py,
-    PyGraph, PySolveReport,
+    group_by_pose, guarded, input_err, line_solve_params, read_poses, solved_out, to_py, PyGraph,
+    PySolveReport,
 };
 use crate::correction::{CorrectionEngine, CorrectionSpec, HumanWeights};
 use crate::error::HitlError;
@@ -104,16 +104,15 @@ impl PyCorrectionEngine {
     )> {
         let n = self.inner.num_poses();
         let read = || -> Result<(SolverParams, Vec<CorrectionSpec>), HitlError> {
-            let params = SolverParams {
-                method: parse_method(method)?,
+            let params = line_solve_params(
+                method,
                 max_iterations,
                 relative_tolerance,
                 absolute_tolerance,
                 lambda_initial,
-                robust: parse_robust(robust.as_deref().unwrap_or(&[]))?,
+                robust.as_deref(),
                 watchdog_steps,
-                ..SolverParams::default()
-            };
+            )?;
             let mut specs = Vec::with_capacity(corrections.len());
             for (k, (mode, ap, aq, bp, bq)) in corrections.iter().enumerate() {
                 let label = |e: HitlError| input_err(format!("correction {k}: {e}"));

@@ -122,6 +122,29 @@ pub(super) fn poses_out<'py>(py: Python<'py>, values: &Values) -> Bound<'py, PyA
         .into_pyarray(py)
 }
 
+/// The solver settings of the solves over poses and lines (`Graph.optimize_with_lines`,
+/// `CorrectionEngine.solve`): the given ones, the rest at their defaults.
+pub(super) fn line_solve_params(
+    method: &str,
+    max_iterations: usize,
+    relative_tolerance: f64,
+    absolute_tolerance: f64,
+    lambda_initial: f64,
+    robust: Option<&[(String, String)]>,
+    watchdog_steps: usize,
+) -> Result<SolverParams, HitlError> {
+    Ok(SolverParams {
+        method: parse_method(method)?,
+        max_iterations,
+        relative_tolerance,
+        absolute_tolerance,
+        lambda_initial,
+        robust: parse_robust(robust.unwrap_or(&[]))?,
+        watchdog_steps,
+        ..SolverParams::default()
+    })
+}
+
 /// A solve's answer for Python: poses `(N, 3)`, lines `(L, 2)` rows `(phi, rho)`, the report.
 #[allow(clippy::type_complexity)]
 pub(super) fn solved_out<'py>(
@@ -525,18 +548,16 @@ impl PyGraph {
         Bound<'py, PyArray2<f64>>,
         PySolveReport,
     )> {
-        let method = parse_method(method).map_err(|e| to_py(py, e))?;
-        let robust = parse_robust(robust.as_deref().unwrap_or(&[])).map_err(|e| to_py(py, e))?;
-        let params = SolverParams {
+        let params = line_solve_params(
             method,
             max_iterations,
             relative_tolerance,
             absolute_tolerance,
             lambda_initial,
-            robust,
+            robust.as_deref(),
             watchdog_steps,
-            ..SolverParams::default()
-        };
+        )
+        .map_err(|e| to_py(py, e))?;
         let l = lines.as_array();
         if l.ncols() != 2 {
             return Err(to_py(

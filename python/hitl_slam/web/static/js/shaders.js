@@ -144,6 +144,19 @@ void main() {
   gl_FragColor = vec4(u_color.rgb * a, a);
 }`;
 
+/** Binds `texture` to TEXTURE_2D for texel-exact reads: nearest filtering, clamped edges. */
+export function bindExactTexture(gl, texture) {
+  gl.bindTexture(gl.TEXTURE_2D, texture);
+  for (const [p, v] of [
+    [gl.TEXTURE_MIN_FILTER, gl.NEAREST],
+    [gl.TEXTURE_MAG_FILTER, gl.NEAREST],
+    [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE],
+    [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE],
+  ]) {
+    gl.texParameteri(gl.TEXTURE_2D, p, v);
+  }
+}
+
 /** Compiles and links a program; returns {program, attrib: {name: loc}, uniform: {name: loc}}. */
 export function compile(gl, vs, fs) {
   const program = gl.createProgram();

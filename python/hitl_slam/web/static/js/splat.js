@@ -6,7 +6,7 @@
 // this is some 20 times faster than GL_POINTS, whose per-vertex cost there is about 0.6 us; with
 // a GPU the view draws GL_POINTS instead (view.js picks).
 
-import { SPLAT_FS, SPLAT_VS, compile } from "./shaders.js";
+import { SPLAT_FS, SPLAT_VS, bindExactTexture, compile } from "./shaders.js";
 
 const TILE = 32; // [device px] only tiles with points are shaded
 
@@ -23,15 +23,7 @@ export class PointSplatter {
     this.width = 0;
     this.height = 0;
     this.lastCpuMs = 0;
-    gl.bindTexture(gl.TEXTURE_2D, this.texture);
-    for (const [p, v] of [
-      [gl.TEXTURE_MIN_FILTER, gl.NEAREST],
-      [gl.TEXTURE_MAG_FILTER, gl.NEAREST],
-      [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE],
-      [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE],
-    ]) {
-      gl.texParameteri(gl.TEXTURE_2D, p, v);
-    }
+    bindExactTexture(gl, this.texture);
   }
 
   /**

@@ -21,6 +21,7 @@ import {
   POINT_FS,
   POINT_VS,
   SCAN_VS,
+  bindExactTexture,
   compile,
 } from "./shaders.js";
 
@@ -210,15 +211,7 @@ export class MapView {
       texels[4 * i + 3] = Math.sin(t);
     }
     gl.activeTexture(gl.TEXTURE1);
-    gl.bindTexture(gl.TEXTURE_2D, this.poseTexture);
-    for (const [p, v] of [
-      [gl.TEXTURE_MIN_FILTER, gl.NEAREST],
-      [gl.TEXTURE_MAG_FILTER, gl.NEAREST],
-      [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE],
-      [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE],
-    ]) {
-      gl.texParameteri(gl.TEXTURE_2D, p, v);
-    }
+    bindExactTexture(gl, this.poseTexture);
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 4);
     const internal = this.webgl2 ? gl.RGBA32F : gl.RGBA;
     gl.texImage2D(gl.TEXTURE_2D, 0, internal, width, height, 0, gl.RGBA, gl.FLOAT, texels);
