@@ -18,7 +18,6 @@ use std::f64::consts::{FRAC_PI_2, PI};
 
 use super::Factor;
 use crate::error::{input, Result};
-use crate::se2::transform;
 use crate::values::{Key, Values};
 
 /// The relation a person asserts between two features.
@@ -83,15 +82,22 @@ fn check_points(points: &[[f64; 2]]) -> Result<()> {
 }
 
 /// R_a / R_b for the points one pose observed on one line.
+///
+/// Every point's residual is linear in the same three numbers, `w (q . s + d)` with
+/// `q = R(theta)^T n` (the line's normal in the robot frame) and `d = n . t - rho`: the residual
+/// vector is `w P [q; d]` with `P` the `K x 3` matrix of rows `[s_x, s_y, 1]`. With `P = Q T` (thin
+/// QR, `T` upper triangular 3 x 3), `|w P v|^2 = |w T v|^2` for every `v`, so the factor is stored
+/// as the (at most) three rows of `w T` instead of K rows: the same cost, gradient and
+/// Gauss-Newton matrix (the Jacobians are `w P dv` and `w T dv`, and `P^T P = T^T T`), and a
+/// robust kernel on the whole factor sees the same chi2, at a cost independent of the number of
+/// points. A pose that saw three points or fewer keeps them as rows.
 #[derive(Clone, Debug)]
 pub struct PointsToLineFactor {
     keys: [Key; 2],
     pose: usize,
     line: usize,
-    /// Robot-frame points.
-    points: Vec<[f64; 2]>,
-    /// 1 / sigma_f (per-point form) or 1 / (sigma_f sqrt|S|) (the paper's averaged form).
-    weight: f64,
+    /// Rows `[a, b, c]` of the residual `a q_x + b q_y + c d`, the weight included.
+    rows: Vec<[f64; 3]>,
 }
 
 impl PointsToLineFactor {
@@ -100,12 +106,27 @@ impl PointsToLineFactor {
         if !(weight.is_finite() && weight > 0.0) {
             return input(format!("line factor weight must be positive, got {weight}"));
         }
+        let rows = if points.len() <= 3 {
+            points
+                .iter()
+                .map(|p| [weight * p[0], weight * p[1], weight])
+                .collect()
+        } else {
+            let p = nalgebra::DMatrix::from_fn(points.len(), 3, |i, j| match j {
+                0 => points[i][0],
+                1 => points[i][1],
+                _ => 1.0,
+            });
+            let t = p.qr().r();
+            (0..3)
+                .map(|i| [weight * t[(i, 0)], weight * t[(i, 1)], weight * t[(i, 2)]])
+                .collect()
+        };
         Ok(Self {
             keys: [Key::Pose(pose), Key::Line(line)],
             pose,
             line,
-            points,
-            weight,
+            rows,
         })
     }
 }
@@ -116,7 +137,7 @@ impl Factor for PointsToLineFactor {
     }
 
     fn residual_dim(&self) -> usize {
-        self.points.len()
+        self.rows.len()
     }
 
     fn residual(&self, values: &Values, r: &mut [f64]) {
@@ -124,9 +145,10 @@ impl Factor for PointsToLineFactor {
         let l = values.lines[self.line];
         let (c, s) = x.cos_sin();
         let (cp, sp) = (l.phi.cos(), l.phi.sin());
-        for (out, p) in r.iter_mut().zip(&self.points) {
-            let [wx, wy] = transform(c, s, [x.x, x.y], *p);
-            *out = self.weight * (cp * wx + sp * wy - l.rho);
+        let q = [cp * c + sp * s, -cp * s + sp * c];
+        let d = cp * x.x + sp * x.y - l.rho;
+        for (out, row) in r.iter_mut().zip(&self.rows) {
+            *out = row[0] * q[0] + row[1] * q[1] + row[2] * d;
         }
     }
 
@@ -135,19 +157,21 @@ impl Factor for PointsToLineFactor {
         let l = values.lines[self.line];
         let (c, s) = x.cos_sin();
         let (cp, sp) = (l.phi.cos(), l.phi.sin());
-        // n^T R, constant over the points.
-        let nr = [cp * c + sp * s, -cp * s + sp * c];
-        let k = self.points.len();
+        // q = R^T n and d = n . t - rho; in the chart x * Exp(delta): dd/dt = n^T R = q,
+        // dq/dtheta = (q_y, -q_x); along phi: dq = R^T n', dd = n' . t with n' = (-sin, cos).
+        let q = [cp * c + sp * s, -cp * s + sp * c];
+        let d = cp * x.x + sp * x.y - l.rho;
+        let dq = [-sp * c + cp * s, sp * s + cp * c];
+        let dd = -sp * x.x + cp * x.y;
+        let k = self.rows.len();
         let (jp, jl) = jacobians.split_at_mut(3 * k);
-        for (row, p) in self.points.iter().enumerate() {
-            let [wx, wy] = transform(c, s, [x.x, x.y], *p);
-            r[row] = self.weight * (cp * wx + sp * wy - l.rho);
-            // d/dtheta: n^T R S p = nr . (-p_y, p_x)
-            jp[3 * row] = self.weight * nr[0];
-            jp[3 * row + 1] = self.weight * nr[1];
-            jp[3 * row + 2] = self.weight * (-nr[0] * p[1] + nr[1] * p[0]);
-            jl[2 * row] = self.weight * (-sp * wx + cp * wy);
-            jl[2 * row + 1] = -self.weight;
+        for (i, row) in self.rows.iter().enumerate() {
+            r[i] = row[0] * q[0] + row[1] * q[1] + row[2] * d;
+            jp[3 * i] = row[2] * q[0];
+            jp[3 * i + 1] = row[2] * q[1];
+            jp[3 * i + 2] = row[0] * q[1] - row[1] * q[0];
+            jl[2 * i] = row[0] * dq[0] + row[1] * dq[1] + row[2] * dd;
+            jl[2 * i + 1] = -row[2];
         }
     }
 }
@@ -381,6 +405,75 @@ mod tests {
             assert!((r[k] - expect).abs() < 1e-12);
         }
         check_jacobians(&f, &v, 1e-6, 1e-6);
+    }
+
+    #[test]
+    fn many_points_compress_to_three_rows_with_the_same_normal_equations() {
+        let v = values();
+        let pts: Vec<[f64; 2]> = (0..40)
+            .map(|k| {
+                let t = k as f64;
+                [
+                    0.3 * t - 4.0 + 0.01 * (7.0 * t).sin(),
+                    2.0 + 0.05 * (3.0 * t).cos(),
+                ]
+            })
+            .collect();
+        let w = 1.0 / 0.03;
+        let f = PointsToLineFactor::new(2, 1, pts.clone(), w).unwrap();
+        assert_eq!(f.residual_dim(), 3);
+        check_jacobians(&f, &v, 1e-6, 1e-6);
+        // The per-point reference: one factor per point (three points or fewer stay rows).
+        let singles: Vec<PointsToLineFactor> = pts
+            .iter()
+            .map(|p| PointsToLineFactor::new(2, 1, vec![*p], w).unwrap())
+            .collect();
+        let (mut h_ref, mut g_ref, mut c_ref) = ([[0.0; 5]; 5], [0.0; 5], 0.0);
+        for s in &singles {
+            let (mut r, mut j) = ([0.0; 1], [0.0; 5]);
+            s.linearize(&v, &mut r, &mut j);
+            c_ref += r[0] * r[0];
+            for a in 0..5 {
+                g_ref[a] += j[a] * r[0];
+                for b in 0..5 {
+                    h_ref[a][b] += j[a] * j[b];
+                }
+            }
+        }
+        let (mut r, mut j) = (vec![0.0; 3], vec![0.0; 15]);
+        f.linearize(&v, &mut r, &mut j);
+        let row = |i: usize| {
+            [
+                j[3 * i],
+                j[3 * i + 1],
+                j[3 * i + 2],
+                j[9 + 2 * i],
+                j[9 + 2 * i + 1],
+            ]
+        };
+        let (mut h, mut g) = ([[0.0; 5]; 5], [0.0; 5]);
+        for i in 0..3 {
+            let ji = row(i);
+            for a in 0..5 {
+                g[a] += ji[a] * r[i];
+                for b in 0..5 {
+                    h[a][b] += ji[a] * ji[b];
+                }
+            }
+        }
+        let cost: f64 = r.iter().map(|x| x * x).sum();
+        assert!((cost - c_ref).abs() <= 1e-10 * c_ref, "{cost} vs {c_ref}");
+        assert!((f.chi2(&v) - c_ref).abs() <= 1e-10 * c_ref);
+        for a in 0..5 {
+            assert!(
+                (g[a] - g_ref[a]).abs() <= 1e-9 * (1.0 + g_ref[a].abs()),
+                "g[{a}]"
+            );
+            for b in 0..5 {
+                let scale = 1.0 + h_ref[a][b].abs();
+                assert!((h[a][b] - h_ref[a][b]).abs() <= 1e-9 * scale, "H[{a}][{b}]");
+            }
+        }
     }
 
     fn shares() -> Vec<(usize, CentroidShare, CentroidShare)> {
