@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import contextlib
 import math
+import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +21,7 @@ from hitl_slam.config import DEFAULT
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected
 from hitl_slam.geometry import fit_line
+from hitl_slam.interpret import interpret
 from hitl_slam.map import Map
 from hitl_slam.pipeline import apply_correction
 from hitl_slam.session import Session, apply_in_order
@@ -120,6 +123,54 @@ def test_newest_of_two_drawn_corrections_changes_the_map(world: World) -> None:
     assert np.abs(second.poses[:, :2] - first.poses[:, :2]).max() > 0.05
     assert relation_error(m, second.poses, second.interpretation)[1] < 0.02
     assert relation_error(m, second.poses, first.interpretation)[0] < 0.3
+
+
+def _core_calls(fn: Callable[[], object]) -> list[str]:
+    """The calls into the compiled core (``hitl_slam._core``'s functions and the methods of its
+    objects) that ``fn`` makes, by name, seen by the interpreter's profiling hook."""
+    calls: list[str] = []
+
+    def hook(_frame: object, event: str, arg: object) -> None:
+        if event != "c_call":
+            return
+        owner = getattr(arg, "__self__", None)
+        if getattr(arg, "__module__", None) == "hitl_slam._core" or (
+            owner is not None and type(owner).__module__ == "hitl_slam._core"
+        ):
+            calls.append(getattr(arg, "__qualname__", repr(arg)))
+
+    sys.setprofile(hook)
+    try:
+        fn()
+    finally:
+        sys.setprofile(None)
+    return calls
+
+
+def test_one_correction_crosses_into_the_core_once(world: World) -> None:
+    """Issue 12: interpretation, explicit correction, back-propagation, the joint solve with
+    every earlier correction, and both guards are one call into the core (after the map's
+    one-time set-up: its scans, its engine and the odometry check, held per map)."""
+    m = world.map
+    first = apply_correction(m, m.poses, _draw(world, Mode.PARALLEL), (), DEFAULT)
+    rng = np.random.default_rng(5)
+    a = drawn_segment(world, first.poses, OUTER_BOTTOM, (0, 60), rng, along=(0.3, 0.7))
+    b = drawn_segment(world, first.poses, OUTER_BOTTOM, (265, 325), rng, along=(0.3, 0.7))
+    drawn = DrawnCorrection.make(a, b, Mode.COLOCATION)
+    calls = _core_calls(
+        lambda: apply_correction(m, first.poses, drawn, [first.interpretation], DEFAULT)
+    )
+    assert calls == ["CorrectionEngine.apply"], calls
+    # A refused drawing too: one call, which refuses.
+    far = DrawnCorrection.make([[50.0, 50.0], [52.0, 50.0]], b, Mode.COLOCATION)
+
+    def refused() -> None:
+        with pytest.raises(CorrectionRejected):
+            apply_correction(m, first.poses, far, [first.interpretation], DEFAULT)
+
+    assert _core_calls(refused) == ["CorrectionEngine.apply"]
+    # The hook sees calls into the core: the interpretation alone is one call of its own.
+    assert _core_calls(lambda: interpret(m, first.poses, drawn)) == ["MapScans.interpret"]
 
 
 BAD_DRAWINGS = {

@@ -11,13 +11,15 @@
 from __future__ import annotations
 
 import math
+from statistics import NormalDist
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from copies_world import WALL_A, careful_drawing, copies_world
 from hitl_slam.config import DEFAULT
-from hitl_slam.corrections import DrawnCorrection, Mode
+from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected
 from hitl_slam.evaluation import _ate
 from hitl_slam.pipeline import apply_correction
@@ -95,6 +97,13 @@ def _segment_over(points: np.ndarray) -> list[list[float]]:
     return [list(centre + t[0] * d), list(centre + t[1] * d)]
 
 
+def chi2_limit(dof: int, probability: float) -> float:
+    """The reference: the ``probability`` quantile of chi2 with ``dof`` degrees of freedom by
+    Wilson-Hilferty (the core's ``correction::chi2_limit``)."""
+    z = NormalDist().inv_cdf(probability)
+    return dof * (1.0 - 2.0 / (9.0 * dof) + z * math.sqrt(2.0 / (9.0 * dof))) ** 3
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 def test_a_result_beyond_the_odometry_noise_is_tried_again_or_refused(seed: int) -> None:
     """The consistency guard's decision, on a real log (Seattle, Radish) damaged by odometry
@@ -105,8 +114,8 @@ def test_a_result_beyond_the_odometry_noise_is_tried_again_or_refused(seed: int)
     import dataclasses
 
     from hitl_slam.full_evaluation import LASER, _base_scenario
-    from hitl_slam.interpret import interpret
-    from hitl_slam.pipeline import _consistency_guard, _correct, _graph_chi2, chi2_limit
+    from hitl_slam.interpret import checked_drawing, from_core, interpret, map_scans
+    from hitl_slam.pipeline import correction_engine, explicit_and_backpropagate, solve_all
     from hitl_slam.sim.fault_models import damaged
 
     if not (LASER / "seattle-corrected.log.gz").is_file():
@@ -125,28 +134,57 @@ def test_a_result_beyond_the_odometry_noise_is_tried_again_or_refused(seed: int)
             break
     assert drawn is not None
     h = interpret(m, poses, drawn)
-    good = _correct(m, poses, h, [], DEFAULT)
+    engine = correction_engine(m)
+    seg_a, seg_b, sigma_h = checked_drawing(drawn, DEFAULT)
+
+    def guard(h: Interpretation, new_poses: NDArray[np.float64]) -> object:
+        """The core's guard on ``h`` solved to ``new_poses``: None (apply as is), or the
+        alternative (interpretation, poses); CorrectionRejected with the figures."""
+        return engine._consistency_guard(
+            map_scans(m),
+            poses,
+            seg_a,
+            seg_b,
+            drawn.mode.value,
+            (
+                h.mode.value,
+                np.asarray(h.line_a),
+                np.asarray(h.line_b),
+                h.s_a,
+                h.s_b,
+                h.x_a,
+                h.x_b,
+            ),
+            new_poses,
+            [],
+            DEFAULT,
+            sigma_h=sigma_h,
+            consistency_z=NormalDist().inv_cdf(DEFAULT.consistency_guard),
+        )
+
+    moved, _ = explicit_and_backpropagate(m, poses, h)
+    good, _, _ = solve_all(m, [h], DEFAULT, moved)
     limit = chi2_limit(3 * m.edges.shape[0], DEFAULT.consistency_guard)
-    assert _graph_chi2(m, good[0])[0] < limit
-    out = _consistency_guard(m, poses, drawn, h, good, [], DEFAULT)
-    assert out[0] is h  # within the noise: untouched
-    broken = good[0].copy()
+    assert engine.base_chi2(good) < limit
+    assert guard(h, good) is None  # within the noise: untouched
+    broken = good.copy()
     step = n // 2
     turn = np.array([0.0, 0.0, math.radians(40.0)])
     c, s_ = math.cos(turn[2]), math.sin(turn[2])
     rel = broken[step:, :2] - broken[step - 1, :2]
     broken[step:, :2] = broken[step - 1, :2] + rel @ np.array([[c, s_], [-s_, c]])
     broken[step:, 2] += turn[2]
-    assert _graph_chi2(m, broken)[0] > limit
-    bad = (broken, *good[1:])
+    assert engine.base_chi2(broken) > limit
     # A drawing whose nearest passes are the ones kept: nothing else to try, refused.
     with pytest.raises(CorrectionRejected, match=r"chi2 would go from \d+ to \d+, beyond"):
-        _consistency_guard(m, poses, drawn, h, bad, [], DEFAULT)
+        guard(h, broken)
     # A first interpretation that kept other passes: the nearest ones are solved and applied.
     other = dataclasses.replace(h, s_a=h.s_a[: max(1, len(h.s_a) // 2)])
-    h2, new, *_ = _consistency_guard(m, poses, drawn, other, bad, [], DEFAULT)
+    out = guard(other, broken)
+    assert isinstance(out, tuple)
+    h2, new = from_core(out[0]), out[1]
     assert "nearest the drawings" in h2.notes[-1]
-    assert _graph_chi2(m, new)[0] < limit
+    assert engine.base_chi2(new) < limit
 
 
 @pytest.mark.parametrize("value", [1.0, 1.5, 99.0])

@@ -1,6 +1,6 @@
 """Type stubs for the compiled core (checked by ``python -m mypy.stubtest hitl_slam._core``)."""
 
-from typing import final
+from typing import Any, final
 
 import numpy as np
 from numpy.typing import NDArray
@@ -10,6 +10,7 @@ __all__ = [
     "EmFit",
     "Graph",
     "IterationRecord",
+    "MapScans",
     "Snap",
     "SolveReport",
     "__version__",
@@ -132,11 +133,74 @@ class CorrectionEngine:
         measurements: NDArray[np.float64],
         information: NDArray[np.float64],
         anchor: int = 0,
+        *,
+        chain: tuple[
+            NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]
+        ]
+        | None = None,
     ) -> CorrectionEngine: ...
     @property
     def num_poses(self) -> int: ...
     @property
     def analyses(self) -> int: ...
+    def apply(
+        self,
+        scans: MapScans,
+        poses: NDArray[np.float64],
+        a: NDArray[np.float64],
+        b: NDArray[np.float64],
+        mode: str,
+        active: list[tuple[str, NDArray[np.int64], NDArray[np.int64]]],
+        config: Any,
+        *,
+        sigma_h: float,
+        robust: list[tuple[str, str]] | None = None,
+        consistency_z: float = 0.0,
+    ) -> tuple[
+        _Interpretation,
+        NDArray[np.float64],
+        NDArray[np.float64],
+        NDArray[np.float64],
+        SolveReport,
+        float,
+        float,
+    ]: ...
+    def _consistency_guard(
+        self,
+        scans: MapScans,
+        poses: NDArray[np.float64],
+        a: NDArray[np.float64],
+        b: NDArray[np.float64],
+        mode: str,
+        h: tuple[
+            str,
+            NDArray[np.float64],
+            NDArray[np.float64],
+            NDArray[np.int64],
+            NDArray[np.int64],
+            NDArray[np.int64],
+            NDArray[np.int64],
+        ],
+        new_poses: NDArray[np.float64],
+        active: list[tuple[str, NDArray[np.int64], NDArray[np.int64]]],
+        config: Any,
+        *,
+        sigma_h: float,
+        robust: list[tuple[str, str]] | None = None,
+        consistency_z: float,
+    ) -> tuple[_Interpretation, NDArray[np.float64]] | None: ...
+    def explicit_and_backpropagate(
+        self,
+        poses: NDArray[np.float64],
+        mode: str,
+        line_a: NDArray[np.float64],
+        line_b: NDArray[np.float64],
+        x_a: NDArray[np.int64],
+        x_b: NDArray[np.int64],
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+    def chain_variances(
+        self, poses: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
     def clear_cache(self) -> None: ...
     def base_chi2(self, poses: NDArray[np.float64]) -> float: ...
     def solve(
@@ -156,6 +220,40 @@ class CorrectionEngine:
         robust: list[tuple[str, str]] | None = None,
         watchdog_steps: int = 3,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], SolveReport]: ...
+
+_Interpretation = tuple[
+    str,
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    bool,
+    tuple[int, int],
+    tuple[float, float],
+    list[str],
+]
+
+@final
+class MapScans:
+    """A map's scans held once for interpretation."""
+
+    def __new__(cls, points: NDArray[np.float64], offsets: NDArray[np.int64]) -> MapScans: ...
+    @property
+    def num_poses(self) -> int: ...
+    def interpret(
+        self,
+        poses: NDArray[np.float64],
+        a: NDArray[np.float64],
+        b: NDArray[np.float64],
+        mode: str,
+        config: Any,
+        *,
+        sigma_h: float,
+        visit_gap: int | None = None,
+        nearest_visits: bool = False,
+    ) -> _Interpretation: ...
 
 @final
 class Graph:

@@ -7,9 +7,7 @@ Inputs are never modified; a drawing that cannot be interpreted raises Correctio
 
 from __future__ import annotations
 
-import dataclasses
 import logging
-import math
 import threading
 import time
 import weakref
@@ -24,9 +22,9 @@ from numpy.typing import NDArray
 
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
-from hitl_slam.errors import CorrectionRejected
-from hitl_slam.geometry import chain_steps, compose, fit_line, wrap
+from hitl_slam.corrections import DrawnCorrection, Interpretation
+from hitl_slam.errors import InputError
+from hitl_slam.geometry import chain_steps
 from hitl_slam.map import Map, motion_model_information
 from hitl_slam.solve import robust_pairs
 
@@ -71,13 +69,14 @@ def chain_variances(map: Map, poses: FloatArray | None = None) -> tuple[FloatArr
     measurement (a step the odometry check re-measured from the scans, or one an earlier
     correction already bent) has its rotational variance widened by the squared difference:
     how far the displayed step may be from the truth, which is what back-propagation shares
-    the error by."""
-    chain = _chain_of(map)
-    rot = chain.rot.copy()
-    if poses is not None and chain.steps.size:
-        shown = chain_steps(np.asarray(poses, dtype=np.float64))[chain.steps, 2]
-        rot[chain.steps] += wrap(shown - chain.turns) ** 2
-    return rot, chain.trans.copy()
+    the error by (computed by the core, ``correction::Chain::variances``)."""
+    if poses is None:
+        chain = _chain_of(map)
+        return chain.rot.copy(), chain.trans.copy()
+    _, engine, lock = _engine_entry(map)
+    with lock:
+        rot, trans = engine.chain_variances(np.ascontiguousarray(poses, dtype=np.float64))
+    return rot, trans
 
 
 @dataclass(frozen=True)
@@ -152,8 +151,14 @@ def _engine_entry(map: Map) -> _Entry:
         hit = _ENGINES.get(key)
         if hit is not None and hit[0]() is map:
             return hit
+        chain = _chain_of(map)
         engine = _core.CorrectionEngine(
-            map.num_poses, map.edges, map.measurements, map.information, map.anchor
+            map.num_poses,
+            map.edges,
+            map.measurements,
+            map.information,
+            map.anchor,
+            chain=(chain.rot, chain.trans, chain.steps, chain.turns),
         )
         entry = (weakref.ref(map, partial(_forget, _ENGINES, key)), engine, threading.Lock())
         _ENGINES[key] = entry
@@ -198,110 +203,19 @@ def explicit_and_backpropagate(
     map: Map, poses: FloatArray, h: Interpretation
 ) -> tuple[FloatArray, FloatArray]:
     """docs/ALGORITHM.md §4.1 then §4.2: the rigid move of every pose from ``min(X_b)`` on, and
-    the chain from ``max(X_a)`` made to meet it. Returns (new poses, the transform)."""
-    transform = _core.explicit_transform(
-        h.mode.value, np.asarray(h.line_a, dtype=np.float64), np.asarray(h.line_b, dtype=np.float64)
-    )
-    first = int(h.x_b.min())
-    moved = poses.copy()
-    moved[first:] = compose(transform, poses[first:])
-    last_a = int(h.x_a.max())
-    if first > last_a + 1:
-        rot, trans = chain_variances(map, poses)
-        moved = _core.backpropagate(moved, poses, last_a, first, rot, trans)
-    return moved, transform
-
-
-def _graph_chi2(map: Map, *poses: FloatArray) -> list[float]:
-    """chi2 of the map's relative-pose factors alone (the robot's measurements) at each of
-    ``poses`` (one graph built for all)."""
+    the chain from ``max(X_a)`` made to meet it (in the core). Returns (new poses, the
+    transform)."""
     _, engine, lock = _engine_entry(map)
     with lock:
-        return [float(engine.base_chi2(np.ascontiguousarray(p, dtype=np.float64))) for p in poses]
-
-
-def _stretch(map: Map, poses: FloatArray, rows: NDArray[np.int64]) -> float:
-    """[m] Length of the stretch of wall the observations ``rows`` cover: the 2nd to 98th
-    percentile of their positions along their own line."""
-    world = map.observed_points(rows, poses)
-    phi, _ = fit_line(world)
-    along = world @ np.array([-np.sin(phi), np.cos(phi)])
-    lo, hi = np.percentile(along, [2.0, 98.0])
-    return float(hi - lo)
-
-
-def _correct(
-    map: Map,
-    current: FloatArray,
-    h: Interpretation,
-    active: Sequence[Interpretation],
-    config: Config,
-) -> tuple[FloatArray, FloatArray, FloatArray, _core.SolveReport]:
-    moved, transform = explicit_and_backpropagate(map, current, h)
-    new_poses, lines, report = solve_all(map, [*active, h], config, moved)
-    return new_poses, lines, transform, report
-
-
-def chi2_limit(dof: int, probability: float) -> float:
-    """The ``probability`` quantile of chi2 with ``dof`` degrees of freedom (Wilson-Hilferty:
-    within 0.1% of the exact value from a few dozen dof on, which pose graphs always have)."""
-    z = NormalDist().inv_cdf(probability)
-    k = max(dof, 1)
-    return float(k * (1.0 - 2.0 / (9.0 * k) + z * math.sqrt(2.0 / (9.0 * k))) ** 3)
-
-
-def _consistency_guard(
-    map: Map,
-    current: FloatArray,
-    drawn: DrawnCorrection,
-    h: Interpretation,
-    solved: tuple[FloatArray, FloatArray, FloatArray, _core.SolveReport],
-    active: Sequence[Interpretation],
-    config: Config,
-) -> tuple[Interpretation, FloatArray, FloatArray, FloatArray, _core.SolveReport]:
-    """The guard of docs/ALGORITHM.md §I.6: a result whose odometry chi2 is beyond what the
-    odometry's own noise allows (``config.consistency_guard`` quantile, 3 dof per edge; once
-    the map is past that, a rise of more than that quantile's spread, z sqrt(2 dof)) is not
-    applied silently. It is tried again with each segment's pass nearest its drawing (where the
-    biggest pass was kept); if that is within the limit it is applied with a note, otherwise the
-    correction is refused with the figures."""
-    from hitl_slam.interpret import _span, interpret
-
-    new_poses, lines, transform, report = solved
-    dof = 3 * map.edges.shape[0]
-    limit = chi2_limit(dof, config.consistency_guard)
-    # Once earlier corrections have put the map near or past the limit (a drift beyond what
-    # the motion model states), one correction may still add what chi2's own spread allows.
-    step = NormalDist().inv_cdf(config.consistency_guard) * math.sqrt(2.0 * dof)
-    before, cost = _graph_chi2(map, current, new_poses)
-    allowed = max(limit, before + step)
-    if cost <= allowed:
-        return h, new_poses, lines, transform, report
-    logger.info("consistency guard: chi2 %.1f > %.1f; trying the nearest passes", cost, limit)
-    try:
-        alt = interpret(map, current, drawn, config, nearest_visits=True)
-    except CorrectionRejected:
-        alt = None
-    if alt is not None and not (np.array_equal(alt.s_a, h.s_a) and np.array_equal(alt.s_b, h.s_b)):
-        if h.mode is Mode.COLLINEAR and alt.mode is Mode.COLOCATION:
-            alt = dataclasses.replace(alt, mode=Mode.COLLINEAR)
-        alt_solved = _correct(map, current, alt, active, config)
-        (alt_cost,) = _graph_chi2(map, alt_solved[0])
-        if alt_cost <= allowed:
-            note = (
-                f"the passes kept first (poses {_span(h.x_a)} and {_span(h.x_b)}) would have "
-                f"put the robot's measurements at chi2 {cost:.0f}, beyond the {allowed:.0f} their "
-                f"noise allows; the passes nearest the drawings give {alt_cost:.0f}"
-            )
-            logger.info("correction: %s", note)
-            return (dataclasses.replace(alt, notes=(*alt.notes, note)), *alt_solved)
-    raise CorrectionRejected(
-        f"applying it would contradict the robot's own measurements: their chi2 would go from "
-        f"{before:.0f} to {cost:.0f}, beyond the {allowed:.0f} their noise allows (99.9% of chi2 "
-        f"with {dof} dof, or that spread above the map before) with the passes it selected (poses "
-        f"{_span(h.x_a)} and {_span(h.x_b)}); draw each segment along a longer, clearly "
-        "separate stretch of the copy you mean"
-    )
+        moved, transform = engine.explicit_and_backpropagate(
+            np.ascontiguousarray(poses, dtype=np.float64),
+            h.mode.value,
+            np.asarray(h.line_a, dtype=np.float64),
+            np.asarray(h.line_b, dtype=np.float64),
+            np.ascontiguousarray(h.x_a, dtype=np.int64),
+            np.ascontiguousarray(h.x_b, dtype=np.int64),
+        )
+    return moved, transform
 
 
 def apply_correction(
@@ -325,47 +239,48 @@ def apply_correction(
     ``colocation_guard`` above the collinear solution's chi2, the along-the-wall part
     contradicts them and the collinear solution is applied instead. Either way a note in the
     interpretation gives the figures."""
-    from hitl_slam.interpret import interpret
+    from hitl_slam.interpret import checked_drawing, from_core, map_scans
     from hitl_slam.odometry_check import checked_map
 
     t0 = time.perf_counter()
     current = np.ascontiguousarray(poses, dtype=np.float64)
-    h = interpret(map, current, drawn, config)
+    if current.shape != map.poses.shape:
+        raise InputError(
+            f"poses must have shape {map.poses.shape} like the map's, got {current.shape}"
+        )
+    if not np.all(np.isfinite(current)):
+        raise InputError("poses contain non-finite values; give finite poses")
+    seg_a, seg_b, sigma_h = checked_drawing(drawn, config)
+    scans = map_scans(map)
     # Where the error goes: the odometry, re-measured where its scans contradict it
-    # (docs/ALGORITHM.md §I.5).
-    map = checked_map(map, config)
-    t1 = time.perf_counter()
-    if h.mode is Mode.COLOCATION and config.colocation_guard > 0:
-        len_a, len_b = _stretch(map, current, h.s_a), _stretch(map, current, h.s_b)
-        tolerance = 0.1 * max(len_a, len_b) + 2.0 * config.sigma_h
-        if abs(len_a - len_b) > tolerance:
-            note = (
-                f"applied as collinear: the two passes saw different stretches of the wall "
-                f"({len_a:.2f} m and {len_b:.2f} m long), so their centres are not one place"
-            )
-            logger.info("correction: %s", note)
-            h = dataclasses.replace(h, mode=Mode.COLLINEAR, notes=(*h.notes, note))
-    new_poses, lines, transform, report = _correct(map, current, h, active, config)
-    if h.mode is Mode.COLOCATION and config.colocation_guard > 0:
-        alt = dataclasses.replace(h, mode=Mode.COLLINEAR)
-        alt_poses, alt_lines, alt_transform, alt_report = _correct(
-            map, current, alt, active, config
+    # (docs/ALGORITHM.md §I.5); computed once per map.
+    checked = checked_map(map, config)
+    _, engine, lock = _engine_entry(checked)
+    z = NormalDist().inv_cdf(config.consistency_guard) if config.consistency_guard > 0 else 0.0
+    active_rows = [
+        (
+            h.mode.value,
+            np.ascontiguousarray(h.s_a, dtype=np.int64),
+            np.ascontiguousarray(h.s_b, dtype=np.int64),
         )
-        cost, alt_cost = _graph_chi2(map, new_poses, alt_poses)
-        logger.debug("colocation guard: chi2 %.2f as colocation, %.2f as collinear", cost, alt_cost)
-        if cost - alt_cost > config.colocation_guard:
-            note = (
-                f"applied as collinear: the two passes' positions along the wall contradict the "
-                f"odometry (chi2 of the map's measurements {cost:.1f} as colocation, "
-                f"{alt_cost:.1f} as collinear; guard {config.colocation_guard:g})"
-            )
-            logger.info("correction: %s", note)
-            h = dataclasses.replace(alt, notes=(*alt.notes, note))
-            new_poses, lines, transform, report = alt_poses, alt_lines, alt_transform, alt_report
-    if config.consistency_guard > 0:
-        h, new_poses, lines, transform, report = _consistency_guard(
-            map, current, drawn, h, (new_poses, lines, transform, report), active, config
+        for h in active
+    ]
+    with lock:
+        t, new_poses, lines, transform, report, t_interpret, t_core = engine.apply(
+            scans,
+            current,
+            seg_a,
+            seg_b,
+            drawn.mode.value,
+            active_rows,
+            config,
+            sigma_h=sigma_h,
+            robust=robust_pairs(config.robust),
+            consistency_z=z,
         )
+    h = from_core(t)
+    for note in h.notes:
+        logger.debug("correction: %s", note)
     t2 = time.perf_counter()
     return CorrectionResult(
         poses=new_poses,
@@ -377,6 +292,6 @@ def apply_correction(
         final_chi2=report.final_chi2,
         termination=report.termination,
         time_s=t2 - t0,
-        time_interpret_s=t1 - t0,
-        time_solve_s=t2 - t1,
+        time_interpret_s=t_interpret,
+        time_solve_s=t_core - t_interpret,
     )

@@ -12,6 +12,9 @@ pub enum HitlError {
     /// The optimizer could not produce a solution.
     #[error("{0}")]
     Solver(String),
+    /// A drawing that cannot be turned into a correction; the message says what to draw instead.
+    #[error("{0}")]
+    Rejected(String),
 }
 
 pub type Result<T> = std::result::Result<T, HitlError>;

@@ -9,6 +9,7 @@
 //! engine keeps the base factors, rebuilds only the human part, and keeps the last
 //! [`PATTERN_CACHE`] sparsity patterns keyed by the human part's structure.
 
+use super::apply::Chain;
 use crate::error::{input, HitlError, Result};
 use crate::factors::{CentroidShare, Factor, PointsToLineFactor, RelationFactor, RelationMode};
 use crate::graph::FactorGraph;
@@ -161,6 +162,8 @@ pub struct CorrectionEngine {
     /// Recently used patterns, most recent last, keyed by the human part's structure.
     patterns: Vec<(Vec<Vec<Key>>, SparsityPattern)>,
     analyses: usize,
+    /// The map's chain, for back-propagation (`apply`, `explicit_and_backpropagate`).
+    chain: Option<Chain>,
 }
 
 impl CorrectionEngine {
@@ -175,11 +178,28 @@ impl CorrectionEngine {
             base_factors,
             patterns: Vec::new(),
             analyses: 0,
+            chain: None,
         })
     }
 
     pub fn num_poses(&self) -> usize {
         self.graph.num_poses()
+    }
+
+    /// The map's relative-pose factors (its measured edges).
+    pub fn num_base_factors(&self) -> usize {
+        self.base_factors
+    }
+
+    /// Gives the engine its map's chain (back-propagation needs it).
+    pub fn set_chain(&mut self, chain: Chain) -> Result<()> {
+        chain.validate(self.num_poses())?;
+        self.chain = Some(chain);
+        Ok(())
+    }
+
+    pub fn chain(&self) -> Option<&Chain> {
+        self.chain.as_ref()
     }
 
     /// How many symbolic analyses this engine has computed (cache misses).

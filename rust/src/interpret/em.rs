@@ -18,6 +18,7 @@ use super::grid::GridIndex;
 use super::snap::{snap, Snap, SnapParams};
 use super::{
     canonical_normal, dot, sub, tangent, world_points_near, Point, Points, Segment, SegmentFrame,
+    WorldPoints,
 };
 use crate::error::{HitlError, Result};
 pub(super) use crate::geometry::weighted_fit;
@@ -335,6 +336,28 @@ pub fn em_fit_scans(
     // within the band of it.
     let reach = params.band + search.map_or(0.0, |s| s.search_band);
     let (world, rows) = world_points_near(poses, points, offsets, segments, reach)?;
+    em_fit_near(&world, &rows, segments, params, search)
+}
+
+/// How far from a drawn segment [`em_fit_scans`] needs the map's points: the candidate band,
+/// plus the search band when segments are snapped first.
+pub fn reach(params: &EmParams, search: Option<&SnapParams>) -> f64 {
+    params.band + search.map_or(0.0, |s| s.search_band)
+}
+
+/// [`em_fit_scans`] on the world points already gathered within [`reach`] of `segments`
+/// (`rows`: the map row of each).
+pub fn em_fit_near(
+    world: &WorldPoints,
+    rows: &[usize],
+    segments: &[Segment],
+    params: &EmParams,
+    search: Option<&SnapParams>,
+) -> Result<Vec<EmFit>> {
+    check_inputs(segments, params)?;
+    if let Some(s) = search {
+        s.validate()?;
+    }
     let world_pts = Points::new(&world.flat)?;
     let grid = GridIndex::build_in(world_pts, params.band, world.bounds)?;
     segments

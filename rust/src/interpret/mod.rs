@@ -13,8 +13,8 @@ mod grid;
 mod snap;
 
 pub use em::{
-    em_fit, em_fit_scans, em_fit_segments, line_fit, log_likelihood, responsibilities, EmFit,
-    EmParams, LineFit, MAX_MIXING, MIN_MIXING,
+    em_fit, em_fit_near, em_fit_scans, em_fit_segments, line_fit, log_likelihood, reach,
+    responsibilities, EmFit, EmParams, LineFit, MAX_MIXING, MIN_MIXING,
 };
 pub use grid::{candidates, candidates_brute_force, GridIndex};
 pub use snap::{snap, Snap, SnapParams};
@@ -186,6 +186,92 @@ pub fn world_points_near(
             .iter()
             .any(|seg| segment_distance(centre, seg) <= reach)
     })
+}
+
+/// The bounding circles of a map's scan blocks ([`NEAR_BLOCK`] consecutive points of one scan)
+/// in the robot frame, computed once per map, so that [`ScanBlocks::world_points_near`] culls a
+/// map of millions of points by its blocks without reading the points it drops. The points are
+/// checked finite once, here.
+#[derive(Clone, Debug)]
+pub struct ScanBlocks {
+    /// Per block: its pose, first map row, number of points, robot-frame centre and radius.
+    blocks: Vec<(usize, usize, usize, Point, f64)>,
+}
+
+impl ScanBlocks {
+    pub fn new(points: Points<'_>, offsets: &[i64]) -> Result<Self> {
+        if offsets.first().copied().unwrap_or(-1) != 0
+            || offsets.last().copied().unwrap_or(-1) != points.len() as i64
+            || offsets.windows(2).any(|w| w[1] < w[0])
+        {
+            return Err(HitlError::Input(format!(
+                "offsets must rise from 0 to the number of points ({})",
+                points.len()
+            )));
+        }
+        points.check_finite("point")?;
+        let mut blocks = Vec::with_capacity(points.len() / NEAR_BLOCK + offsets.len());
+        for (i, w) in offsets.windows(2).enumerate() {
+            let (first, end) = (w[0] as usize, w[1] as usize);
+            for start in (first..end).step_by(NEAR_BLOCK) {
+                let len = NEAR_BLOCK.min(end - start);
+                let mut boxed = Bounds::EMPTY;
+                for k in start..start + len {
+                    boxed.add([points.flat[2 * k], points.flat[2 * k + 1]]);
+                }
+                let mid = [
+                    0.5 * (boxed.min[0] + boxed.max[0]),
+                    0.5 * (boxed.min[1] + boxed.max[1]),
+                ];
+                let half = [
+                    0.5 * (boxed.max[0] - boxed.min[0]),
+                    0.5 * (boxed.max[1] - boxed.min[1]),
+                ];
+                blocks.push((i, start, len, mid, dot(half, half).sqrt()));
+            }
+        }
+        Ok(Self { blocks })
+    }
+
+    /// [`world_points_near`] from the kept blocks: the same points in the same order (map
+    /// rows ascending), at a cost proportional to the blocks and the points kept. `poses` must
+    /// be the map's (N, 3) flat, finite.
+    pub fn world_points_near(
+        &self,
+        poses: &[f64],
+        points: Points<'_>,
+        segments: &[Segment],
+        band: f64,
+    ) -> (WorldPoints, Vec<usize>) {
+        let mut out = Vec::new();
+        let mut rows = Vec::new();
+        let mut bounds = Bounds::EMPTY;
+        let mut current = usize::MAX;
+        let (mut c, mut s, mut t) = (1.0, 0.0, [0.0, 0.0]);
+        for &(i, start, len, mid, radius) in &self.blocks {
+            if i != current {
+                current = i;
+                let pose = &poses[3 * i..3 * i + 3];
+                (s, c) = pose[2].sin_cos();
+                t = [pose[0], pose[1]];
+            }
+            let centre = transform(c, s, t, mid);
+            let reach = radius + band + 1e-9 * (1.0 + radius + band + dot(centre, centre).sqrt());
+            if !segments
+                .iter()
+                .any(|seg| segment_distance(centre, seg) <= reach)
+            {
+                continue;
+            }
+            for k in start..start + len {
+                let world = transform(c, s, t, [points.flat[2 * k], points.flat[2 * k + 1]]);
+                bounds.add(world);
+                out.extend_from_slice(&world);
+                rows.push(k);
+            }
+        }
+        (WorldPoints { flat: out, bounds }, rows)
+    }
 }
 
 /// The world points of the blocks of [`NEAR_BLOCK`] scan points for which `keep(world centre,

@@ -49,6 +49,7 @@ pub(super) fn to_py(py: Python<'_>, e: HitlError) -> PyErr {
     match e {
         HitlError::Input(m) => exception(py, "InputError", m),
         HitlError::Solver(m) => exception(py, "SolverError", m),
+        HitlError::Rejected(m) => exception(py, "CorrectionRejected", m),
     }
 }
 
@@ -753,7 +754,7 @@ pub(super) fn group_by_pose(
     Ok(out)
 }
 
-fn read_segment(
+pub(super) fn read_segment(
     s: numpy::ndarray::ArrayView2<'_, f64>,
     name: &str,
 ) -> Result<[[f64; 2]; 2], HitlError> {

@@ -1,0 +1,345 @@
+//! One human correction end to end (the paper's Fig. 3, block 2), in one call: interpret the
+//! drawing, move the later part of the map rigidly (explicit correction), close the gap along
+//! the chain (back-propagation), solve poses and line parameters jointly with every active
+//! correction, and the guards of docs/ALGORITHM.md §I.3 and §I.6 that keep a result the robot's
+//! own measurements contradict from being applied silently.
+
+use std::time::Instant;
+
+use super::backpropagate;
+use super::engine::{CorrectionEngine, CorrectionSpec, HumanWeights};
+use super::explicit::explicit_transform;
+use super::interpretation::{interpret, span, Drawing, InterpretParams, Interpretation};
+use super::scans::{Row, Scans};
+use crate::error::{input, HitlError, Result};
+use crate::factors::RelationMode;
+use crate::se2::{wrap_angle, Pose2};
+use crate::solver::{SolveReport, SolverParams};
+use crate::values::Line2;
+
+/// What back-propagation needs of a map's chain (`pipeline._chain_of`): per step `k -> k + 1`
+/// the rotational and isotropic translational variance, and for the steps that have a chain
+/// edge, the edge's measured turn.
+#[derive(Clone, Debug)]
+pub struct Chain {
+    pub rot: Vec<f64>,
+    pub trans: Vec<f64>,
+    pub steps: Vec<usize>,
+    pub turns: Vec<f64>,
+}
+
+impl Chain {
+    pub fn validate(&self, num_poses: usize) -> Result<()> {
+        let n = num_poses.saturating_sub(1);
+        if self.rot.len() != n || self.trans.len() != n || self.steps.len() != self.turns.len() {
+            return input(format!(
+                "a chain of {num_poses} poses needs {n} variances of each kind and one turn per \
+                 step with an edge"
+            ));
+        }
+        if self.steps.iter().any(|&k| k >= n) {
+            return input("a chain step is out of range");
+        }
+        Ok(())
+    }
+
+    /// The variances of each step; a step whose turn in `poses` differs from its edge's
+    /// measurement has its rotational variance widened by the squared difference.
+    pub fn variances(&self, poses: &[Pose2]) -> (Vec<f64>, Vec<f64>) {
+        let mut rot = self.rot.clone();
+        for (&k, &turn) in self.steps.iter().zip(&self.turns) {
+            let shown = wrap_angle(poses[k + 1].theta - poses[k].theta);
+            rot[k] += wrap_angle(shown - turn).powi(2);
+        }
+        (rot, self.trans.clone())
+    }
+}
+
+/// Everything a correction depends on besides the map and the drawing (`Config`'s values).
+#[derive(Clone, Debug)]
+pub struct ApplyParams {
+    pub interpret: InterpretParams,
+    pub weights: HumanWeights,
+    pub solver: SolverParams,
+    /// chi2 units; 0 = off.
+    pub colocation_guard: f64,
+    /// A probability; 0 = off.
+    pub consistency_guard: f64,
+    /// The standard normal quantile of `consistency_guard`.
+    pub consistency_z: f64,
+}
+
+/// An earlier correction that stays active: its relation and observations.
+#[derive(Clone, Debug)]
+pub struct Active {
+    pub mode: RelationMode,
+    pub s_a: Vec<Row>,
+    pub s_b: Vec<Row>,
+}
+
+/// The map after one correction, and how it got there.
+#[derive(Clone, Debug)]
+pub struct Applied {
+    pub interpretation: Interpretation,
+    pub poses: Vec<Pose2>,
+    /// Two per active correction, in order, the new one last.
+    pub lines: Vec<Line2>,
+    pub transform: Pose2,
+    pub report: SolveReport,
+    pub time_interpret: f64,
+    pub time_total: f64,
+}
+
+/// A joint solve's answer for one interpretation.
+pub struct Solved {
+    pub poses: Vec<Pose2>,
+    pub lines: Vec<Line2>,
+    pub transform: Pose2,
+    pub report: SolveReport,
+}
+
+/// The `q`-th percentile (0..100) of `v`, interpolated linearly as numpy's default.
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    let pos = q / 100.0 * (sorted.len() - 1) as f64;
+    let lo = pos.floor() as usize;
+    let hi = (lo + 1).min(sorted.len() - 1);
+    let t = pos - lo as f64;
+    sorted[lo] + (sorted[hi] - sorted[lo]) * t
+}
+
+/// The Wilson-Hilferty quantile of chi2 with `dof` degrees of freedom for the standard normal
+/// quantile `z`.
+pub fn chi2_limit(dof: usize, z: f64) -> f64 {
+    let k = dof.max(1) as f64;
+    k * (1.0 - 2.0 / (9.0 * k) + z * (2.0 / (9.0 * k)).sqrt()).powi(3)
+}
+
+impl CorrectionEngine {
+    /// [m] Length of the stretch of wall `rows` cover at `poses`: the 2nd to 98th percentile of
+    /// their positions along their own line.
+    fn stretch(scans: &Scans, poses: &[Pose2], rows: &[Row]) -> Result<f64> {
+        let world = scans.world(poses, rows)?;
+        let line = crate::geometry::fit_line(&world)
+            .ok_or_else(|| HitlError::Input("a stretch of wall needs observations".into()))?;
+        let dir = [-line.phi.sin(), line.phi.cos()];
+        let mut along: Vec<f64> = world
+            .iter()
+            .map(|w| w[0] * dir[0] + w[1] * dir[1])
+            .collect();
+        along.sort_by(f64::total_cmp);
+        Ok(percentile(&along, 98.0) - percentile(&along, 2.0))
+    }
+
+    /// docs/ALGORITHM.md §4.1 then §4.2: the rigid move of every pose from `min(X_b)` on, and
+    /// the chain from `max(X_a)` made to meet it. Returns (new poses, the transform).
+    pub fn explicit_and_backpropagate(
+        &self,
+        poses: &[Pose2],
+        h: &Interpretation,
+    ) -> Result<(Vec<Pose2>, Pose2)> {
+        let transform = explicit_transform(h.mode, &h.line_a, &h.line_b)?;
+        let (Some(&first), Some(&last_a)) = (h.x_b.iter().min(), h.x_a.iter().max()) else {
+            return input("an interpretation needs poses on both sides");
+        };
+        let (first, last_a) = (first as usize, last_a as usize);
+        if first >= poses.len() {
+            return input(format!("pose {first} is out of range"));
+        }
+        let mut moved = poses.to_vec();
+        for p in &mut moved[first..] {
+            *p = transform.compose(*p);
+        }
+        if first > last_a + 1 {
+            let chain = self.chain().ok_or_else(|| {
+                HitlError::Input("the engine was built without the map's chain".into())
+            })?;
+            let (rot, trans) = chain.variances(poses);
+            backpropagate(&mut moved, poses, last_a, first, &rot, &trans)?;
+        }
+        Ok((moved, transform))
+    }
+
+    /// The joint solve of `active` plus `h` from the explicit correction of `h`.
+    fn correct(
+        &mut self,
+        scans: &Scans,
+        current: &[Pose2],
+        h: &Interpretation,
+        active: &[Active],
+        p: &ApplyParams,
+    ) -> Result<Solved> {
+        let (moved, transform) = self.explicit_and_backpropagate(current, h)?;
+        let mut specs = Vec::with_capacity(active.len() + 1);
+        for c in active {
+            specs.push(spec(scans, c.mode, &c.s_a, &c.s_b)?);
+        }
+        specs.push(spec(scans, h.mode, &h.s_a, &h.s_b)?);
+        let (values, report) = self.solve(moved, &specs, &p.weights, &p.solver)?;
+        Ok(Solved {
+            poses: values.poses,
+            lines: values.lines,
+            transform,
+            report,
+        })
+    }
+
+    /// Interprets `drawing` on the map shown with `current`, corrects, and re-solves with every
+    /// correction in `active` plus the new one. Refusals are [`HitlError::Rejected`]; nothing
+    /// held by the engine but its cache of analyses changes either way.
+    pub fn apply(
+        &mut self,
+        scans: &Scans,
+        current: &[Pose2],
+        drawing: &Drawing,
+        active: &[Active],
+        p: &ApplyParams,
+    ) -> Result<Applied> {
+        let t0 = Instant::now();
+        if scans.num_poses() != self.num_poses() {
+            return input(format!(
+                "the scans are of {} poses, the engine's map of {}",
+                scans.num_poses(),
+                self.num_poses()
+            ));
+        }
+        let mut h = interpret(scans, current, drawing, &p.interpret, false)?;
+        let time_interpret = t0.elapsed().as_secs_f64();
+        let sigma_h = p.interpret.sigma_h;
+        if h.mode == RelationMode::Colocation && p.colocation_guard > 0.0 {
+            let len_a = Self::stretch(scans, current, &h.s_a)?;
+            let len_b = Self::stretch(scans, current, &h.s_b)?;
+            let tolerance = 0.1 * len_a.max(len_b) + 2.0 * sigma_h;
+            if (len_a - len_b).abs() > tolerance {
+                h.notes.push(format!(
+                    "applied as collinear: the two passes saw different stretches of the wall \
+                     ({len_a:.2} m and {len_b:.2} m long), so their centres are not one place"
+                ));
+                h.mode = RelationMode::Collinear;
+            }
+        }
+        let mut solved = self.correct(scans, current, &h, active, p)?;
+        if h.mode == RelationMode::Colocation && p.colocation_guard > 0.0 {
+            let mut alt = h.clone();
+            alt.mode = RelationMode::Collinear;
+            let alt_solved = self.correct(scans, current, &alt, active, p)?;
+            let cost = self.base_chi2(&solved.poses)?;
+            let alt_cost = self.base_chi2(&alt_solved.poses)?;
+            if cost - alt_cost > p.colocation_guard {
+                alt.notes.push(format!(
+                    "applied as collinear: the two passes' positions along the wall contradict \
+                     the odometry (chi2 of the map's measurements {cost:.1} as colocation, \
+                     {alt_cost:.1} as collinear; guard {})",
+                    python_g(p.colocation_guard)
+                ));
+                h = alt;
+                solved = alt_solved;
+            }
+        }
+        if p.consistency_guard > 0.0 {
+            (h, solved) = self.consistency_guard(scans, current, drawing, h, solved, active, p)?;
+        }
+        Ok(Applied {
+            interpretation: h,
+            poses: solved.poses,
+            lines: solved.lines,
+            transform: solved.transform,
+            report: solved.report,
+            time_interpret,
+            time_total: t0.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// The guard of docs/ALGORITHM.md §I.6 on a solved result (see [`Self::guard_alternative`]).
+    #[allow(clippy::too_many_arguments)]
+    fn consistency_guard(
+        &mut self,
+        scans: &Scans,
+        current: &[Pose2],
+        drawing: &Drawing,
+        h: Interpretation,
+        solved: Solved,
+        active: &[Active],
+        p: &ApplyParams,
+    ) -> Result<(Interpretation, Solved)> {
+        match self.guard_alternative(scans, current, drawing, &h, &solved.poses, active, p)? {
+            None => Ok((h, solved)),
+            Some((alt, alt_solved)) => Ok((alt, alt_solved)),
+        }
+    }
+
+    /// The guard of docs/ALGORITHM.md §I.6: a result (`new_poses` for `h`) whose odometry chi2
+    /// is beyond what the odometry's own noise allows (3 dof per edge; once the map is past
+    /// that, a rise of more than the quantile's spread, z sqrt(2 dof)) is not applied silently.
+    /// `None`: within the limit, apply it. Otherwise it is tried again with each segment's pass
+    /// nearest its drawing; if that is within the limit, that interpretation (with a note) and
+    /// its solution are returned, otherwise the correction is refused with the figures.
+    #[allow(clippy::too_many_arguments)]
+    pub fn guard_alternative(
+        &mut self,
+        scans: &Scans,
+        current: &[Pose2],
+        drawing: &Drawing,
+        h: &Interpretation,
+        new_poses: &[Pose2],
+        active: &[Active],
+        p: &ApplyParams,
+    ) -> Result<Option<(Interpretation, Solved)>> {
+        let dof = 3 * self.num_base_factors();
+        let limit = chi2_limit(dof, p.consistency_z);
+        let step = p.consistency_z * (2.0 * dof as f64).sqrt();
+        let before = self.base_chi2(current)?;
+        let cost = self.base_chi2(new_poses)?;
+        let allowed = limit.max(before + step);
+        if cost <= allowed {
+            return Ok(None);
+        }
+        let alt = match interpret(scans, current, drawing, &p.interpret, true) {
+            Ok(alt) => Some(alt),
+            Err(HitlError::Rejected(_)) => None,
+            Err(e) => return Err(e),
+        };
+        if let Some(mut alt) = alt.filter(|a| a.s_a != h.s_a || a.s_b != h.s_b) {
+            if h.mode == RelationMode::Collinear && alt.mode == RelationMode::Colocation {
+                alt.mode = RelationMode::Collinear;
+            }
+            let alt_solved = self.correct(scans, current, &alt, active, p)?;
+            let alt_cost = self.base_chi2(&alt_solved.poses)?;
+            if alt_cost <= allowed {
+                alt.notes.push(format!(
+                    "the passes kept first (poses {} and {}) would have put the robot's \
+                     measurements at chi2 {cost:.0}, beyond the {allowed:.0} their noise allows; \
+                     the passes nearest the drawings give {alt_cost:.0}",
+                    span(&h.x_a),
+                    span(&h.x_b)
+                ));
+                return Ok(Some((alt, alt_solved)));
+            }
+        }
+        Err(HitlError::Rejected(format!(
+            "applying it would contradict the robot's own measurements: their chi2 would go \
+             from {before:.0} to {cost:.0}, beyond the {allowed:.0} their noise allows (99.9% of \
+             chi2 with {dof} dof, or that spread above the map before) with the passes it \
+             selected (poses {} and {}); draw each segment along a longer, clearly separate \
+             stretch of the copy you mean",
+            span(&h.x_a),
+            span(&h.x_b)
+        )))
+    }
+}
+
+/// A correction's factors' input: its observations grouped by pose.
+pub fn spec(scans: &Scans, mode: RelationMode, s_a: &[Row], s_b: &[Row]) -> Result<CorrectionSpec> {
+    Ok(CorrectionSpec {
+        mode,
+        a: scans.grouped(s_a)?,
+        b: scans.grouped(s_b)?,
+    })
+}
+
+/// Python's `format(x, "g")` for the guard values people configure (at most 6 significant
+/// digits, no trailing zeros).
+fn python_g(x: f64) -> String {
+    let s = format!("{x:.6}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    s.to_string()
+}

@@ -1,0 +1,809 @@
+//! What a person meant by a drawing (docs/ALGORITHM.md §3, §I.2, §I.4): EM finds the feature
+//! under each drawn segment and the observations on it, then the pair rules (pose threshold,
+//! one visit per segment, no shared poses, time order) turn them into
+//! `h = <P_a, P_b, S_a, S_b, X_a, X_b, m>`. Every refusal is a [`HitlError::Rejected`] whose
+//! message says what to draw instead.
+
+use super::scans::{Row, Scans};
+use crate::error::{HitlError, Result};
+use crate::factors::RelationMode;
+use crate::interpret::{
+    em_fit_near, line_fit, reach, EmFit, EmParams, Points, Segment, SnapParams,
+};
+use crate::se2::Pose2;
+
+/// Observations spanning less than this along their line give it no direction [m].
+pub const MIN_EXTENT_M: f64 = 0.05;
+/// A pass whose line turns more from the drawing than this is a crossing wall [rad].
+pub const MAX_TURN: f64 = 0.4;
+/// EM also waits for the mixing weight to settle (`interpret.TOLERANCE_MIXING`).
+pub const TOLERANCE_MIXING: f64 = 1e-4;
+
+/// The constants of interpretation (`Config`'s, with `sigma_h` already chosen).
+#[derive(Clone, Copy, Debug)]
+pub struct InterpretParams {
+    pub sigma_h: f64,
+    pub candidate_band: f64,
+    pub search_band: f64,
+    pub drawing_sigma: f64,
+    pub sigma_em: f64,
+    pub clutter_weight: f64,
+    pub em_tolerance_m: f64,
+    pub em_tolerance_rad: f64,
+    pub em_max_iterations: usize,
+    pub min_points_per_pose: usize,
+    pub visit_gap: usize,
+    pub pass_by_pass: bool,
+}
+
+/// A drawing: two segments and the relation stated between them.
+#[derive(Clone, Copy, Debug)]
+pub struct Drawing {
+    pub a: [[f64; 2]; 2],
+    pub b: [[f64; 2]; 2],
+    pub mode: RelationMode,
+}
+
+/// `h`: the interpretation of a drawing.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Interpretation {
+    pub mode: RelationMode,
+    pub line_a: [[f64; 2]; 2],
+    pub line_b: [[f64; 2]; 2],
+    pub s_a: Vec<Row>,
+    pub s_b: Vec<Row>,
+    pub x_a: Vec<i64>,
+    pub x_b: Vec<i64>,
+    pub swapped: bool,
+    pub iterations: [usize; 2],
+    pub log_likelihood: [f64; 2],
+    pub notes: Vec<String>,
+}
+
+fn rejected<T>(msg: impl Into<String>) -> Result<T> {
+    Err(HitlError::Rejected(msg.into()))
+}
+
+/// `"first-last"` of ascending poses, or `"none"`.
+pub fn span(poses: &[i64]) -> String {
+    match (poses.first(), poses.last()) {
+        (Some(a), Some(b)) => format!("{a}-{b}"),
+        _ => "none".into(),
+    }
+}
+
+/// What one drawn segment selected, narrowed step by step by the pair rules.
+#[derive(Clone, Debug)]
+struct Selection {
+    name: char,
+    drawn: [[f64; 2]; 2],
+    fit: EmFit,
+    rows: Vec<Row>,
+    weights: Vec<f64>,
+}
+
+impl Selection {
+    /// The observing poses, ascending, each once.
+    fn poses(&self) -> Vec<i64> {
+        let mut p: Vec<i64> = self.rows.iter().map(|r| r[0]).collect();
+        p.sort_unstable();
+        p.dedup();
+        p
+    }
+
+    /// Keeps the rows of the poses in `keep` (ascending).
+    fn keep_poses(&mut self, keep: &[i64]) {
+        let mut rows = Vec::with_capacity(self.rows.len());
+        let mut weights = Vec::with_capacity(self.rows.len());
+        for (r, w) in self.rows.iter().zip(&self.weights) {
+            if keep.binary_search(&r[0]).is_ok() {
+                rows.push(*r);
+                weights.push(*w);
+            }
+        }
+        self.rows = rows;
+        self.weights = weights;
+    }
+
+    /// Runs of the observing poses with no gap over `gap`, with their point counts.
+    fn runs(&self, gap: usize) -> Vec<(Vec<i64>, usize)> {
+        let counts = pose_counts(&self.rows);
+        let mut out: Vec<(Vec<i64>, usize)> = Vec::new();
+        let mut last: Option<i64> = None;
+        for (p, c) in counts {
+            match (out.last_mut(), last) {
+                (Some((run, total)), Some(l)) if p - l <= gap as i64 => {
+                    run.push(p);
+                    *total += c;
+                }
+                _ => out.push((vec![p], c)),
+            }
+            last = Some(p);
+        }
+        out
+    }
+}
+
+/// Each observing pose (ascending) and how many of `rows` it owns.
+fn pose_counts(rows: &[Row]) -> Vec<(i64, usize)> {
+    let mut poses: Vec<i64> = rows.iter().map(|r| r[0]).collect();
+    poses.sort_unstable();
+    let mut counts: Vec<(i64, usize)> = Vec::new();
+    for p in poses {
+        match counts.last_mut() {
+            Some((q, c)) if *q == p => *c += 1,
+            _ => counts.push((p, 1)),
+        }
+    }
+    counts
+}
+
+/// `S` = candidates with `w > 0.5`, as (pose, point) rows, restricted to the poses that own at
+/// least `min_points` of them (T_p, the paper's outlier rejection).
+fn select(
+    name: char,
+    drawn: [[f64; 2]; 2],
+    fit: EmFit,
+    scans: &Scans,
+    min_points: usize,
+) -> Selection {
+    let mut rows = Vec::new();
+    let mut weights = Vec::new();
+    for (&k, &w) in fit.candidates.iter().zip(&fit.weights) {
+        if w > 0.5 {
+            rows.push(scans.row_of(k));
+            weights.push(w);
+        }
+    }
+    let mut sel = Selection {
+        name,
+        drawn,
+        fit,
+        rows,
+        weights,
+    };
+    let keep: Vec<i64> = pose_counts(&sel.rows)
+        .into_iter()
+        .filter(|(_, c)| *c >= min_points)
+        .map(|(p, _)| p)
+        .collect();
+    sel.keep_poses(&keep);
+    sel
+}
+
+fn why_empty(sel: &Selection, band: f64, min_points: usize) -> String {
+    let fit = &sel.fit;
+    if fit.candidates.is_empty() {
+        format!("no map points within {band:.2} m of segment {}", sel.name)
+    } else if fit.num_inliers == 0 {
+        format!(
+            "{} points near segment {}, none of them on one line",
+            fit.candidates.len(),
+            sel.name
+        )
+    } else {
+        format!(
+            "{} points on the line under segment {}, but no pose saw {min_points} or more of them",
+            fit.num_inliers, sel.name
+        )
+    }
+}
+
+/// Keeps the visit (run of pose indices with no gap over `gap`) with the most points.
+fn one_visit(sel: &mut Selection, gap: usize, notes: &mut Vec<String>) {
+    let visits = sel.runs(gap);
+    if visits.len() <= 1 {
+        return;
+    }
+    // The earliest on a tie, so the rule is deterministic.
+    let mut best = 0;
+    for (k, v) in visits.iter().enumerate() {
+        if v.1 > visits[best].1 {
+            best = k;
+        }
+    }
+    let dropped: Vec<String> = visits
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| *k != best)
+        .map(|(_, (v, c))| format!("poses {} ({c} points)", span(v)))
+        .collect();
+    notes.push(format!(
+        "segment {} covers {} visits; kept poses {} ({} points), dropped {}",
+        sel.name,
+        visits.len(),
+        span(&visits[best].0),
+        visits[best].1,
+        dropped.join(", ")
+    ));
+    let keep = visits[best].0.clone();
+    sel.keep_poses(&keep);
+}
+
+fn snap_note(sel: &Selection) -> Option<String> {
+    let snap = sel.fit.snap.as_ref()?;
+    let clear = if snap.runner_up.is_finite() {
+        format!(
+            "score {:.2} against {:.2} for the next line",
+            snap.score, snap.runner_up
+        )
+    } else {
+        "no other line near it".to_string()
+    };
+    Some(format!(
+        "segment {}: the nearest dense line has {} points; the drawing was moved {:.2} m and \
+         {:.2} m onto it and turned {:.1} deg ({clear})",
+        sel.name,
+        snap.support,
+        snap.moved[0],
+        snap.moved[1],
+        snap.turn.to_degrees()
+    ))
+}
+
+/// One run of a selection's poses: one pass of the robot.
+struct Visit {
+    poses: Vec<i64>,
+    points: usize,
+    /// RMS distance of its points to the drawn line [m].
+    rms: f64,
+}
+
+impl Visit {
+    fn score(&self, sigma_c: f64) -> f64 {
+        (self.points as f64).ln() - self.rms * self.rms / (2.0 * sigma_c * sigma_c)
+    }
+
+    fn before(&self, other: &Visit) -> bool {
+        self.poses.last() < other.poses.first()
+    }
+}
+
+fn visits(sel: &Selection, scans: &Scans, poses: &[Pose2], gap: usize) -> Result<Vec<Visit>> {
+    let world = scans.world(poses, &sel.rows)?;
+    let [p0, p1] = sel.drawn;
+    let d = [p1[0] - p0[0], p1[1] - p0[1]];
+    let len = d[0].hypot(d[1]);
+    let normal = [-d[1] / len, d[0] / len];
+    let dist: Vec<f64> = world
+        .iter()
+        .map(|w| (w[0] - p0[0]) * normal[0] + (w[1] - p0[1]) * normal[1])
+        .collect();
+    Ok(sel
+        .runs(gap)
+        .into_iter()
+        .map(|(run, _)| {
+            let (lo, hi) = (run[0], run[run.len() - 1]);
+            let (mut count, mut sum) = (0usize, 0.0);
+            for (r, e) in sel.rows.iter().zip(&dist) {
+                if r[0] >= lo && r[0] <= hi && run.binary_search(&r[0]).is_ok() {
+                    count += 1;
+                    sum += e * e;
+                }
+            }
+            Visit {
+                poses: run,
+                points: count,
+                rms: (sum / count as f64).sqrt(),
+            }
+        })
+        .collect())
+}
+
+/// Chooses one visit per segment jointly: the pair of visits, one before the other in time,
+/// with the best summed score (support against distance to each drawing). False (nothing
+/// changed) when no two visits are apart in time.
+fn joint_visits(
+    a: &mut Selection,
+    b: &mut Selection,
+    scans: &Scans,
+    poses: &[Pose2],
+    gap: usize,
+    sigma_c: f64,
+    notes: &mut Vec<String>,
+) -> Result<bool> {
+    let (va, vb) = (visits(a, scans, poses, gap)?, visits(b, scans, poses, gap)?);
+    let mut best: Option<(f64, usize, usize)> = None;
+    for (i, x) in va.iter().enumerate() {
+        for (j, y) in vb.iter().enumerate() {
+            if !(x.before(y) || y.before(x)) {
+                continue;
+            }
+            let total = x.score(sigma_c) + y.score(sigma_c);
+            if best.is_none_or(|(t, _, _)| total > t) {
+                best = Some((total, i, j));
+            }
+        }
+    }
+    let Some((_, i, j)) = best else {
+        return Ok(false);
+    };
+    for (sel, vs, kept) in [(a, &va, i), (b, &vb, j)] {
+        if vs.len() > 1 {
+            let dropped: Vec<String> = vs
+                .iter()
+                .enumerate()
+                .filter(|(k, _)| *k != kept)
+                .map(|(_, v)| {
+                    format!(
+                        "poses {} ({} points, {:.2} m)",
+                        span(&v.poses),
+                        v.points,
+                        v.rms
+                    )
+                })
+                .collect();
+            let k = &vs[kept];
+            notes.push(format!(
+                "segment {} covers {} visits; kept poses {} ({} points, {:.2} m from the \
+                 drawing), dropped {}",
+                sel.name,
+                vs.len(),
+                span(&k.poses),
+                k.points,
+                k.rms,
+                dropped.join(", ")
+            ));
+        }
+        sel.keep_poses(&vs[kept].poses);
+    }
+    Ok(true)
+}
+
+/// The pair rules' outcome: the two selections in time order and their poses.
+struct Paired {
+    a: Selection,
+    b: Selection,
+    xa: Vec<i64>,
+    xb: Vec<i64>,
+    swapped: bool,
+}
+
+fn setdiff(x: &[i64], remove: &[i64]) -> Vec<i64> {
+    x.iter()
+        .copied()
+        .filter(|p| remove.binary_search(p).is_err())
+        .collect()
+}
+
+/// The design's pair rules (docs/ALGORITHM.md §3.5): refuse one set selected twice; keep one
+/// visit per segment (the one with most points); drop poses that see both; order the pair in
+/// time.
+fn pair_rules(
+    mut a: Selection,
+    mut b: Selection,
+    gap: usize,
+    notes: &mut Vec<String>,
+) -> Result<Paired> {
+    if a.rows == b.rows {
+        let poses = a.poses();
+        return rejected(format!(
+            "segments a and b select the same observations ({} points from poses {}); draw each \
+             segment on a different copy of the feature",
+            a.rows.len(),
+            span(&poses)
+        ));
+    }
+    one_visit(&mut a, gap, notes);
+    one_visit(&mut b, gap, notes);
+    let (mut xa, mut xb) = (a.poses(), b.poses());
+    let common: Vec<i64> = xa
+        .iter()
+        .copied()
+        .filter(|p| xb.binary_search(p).is_ok())
+        .collect();
+    if !common.is_empty() {
+        if common.len() == xa.len() || common.len() == xb.len() {
+            let (inner, other, xi, xo) = if common.len() == xa.len() {
+                (&a, &b, &xa, &xb)
+            } else {
+                (&b, &a, &xb, &xa)
+            };
+            return rejected(format!(
+                "segments a and b are seen from the same visit: every pose that sees segment {} \
+                 (poses {}) also sees segment {} (poses {}), so one cannot be moved relative to \
+                 the other; draw the two segments on copies of the feature seen at different \
+                 times",
+                inner.name,
+                span(xi),
+                other.name,
+                span(xo)
+            ));
+        }
+        a.keep_poses(&setdiff(&xa, &common));
+        b.keep_poses(&setdiff(&xb, &common));
+        notes.push(format!(
+            "removed {} poses seen by both segments ({})",
+            common.len(),
+            span(&common)
+        ));
+        xa = a.poses();
+        xb = b.poses();
+    }
+    let (first_a, last_a) = (xa[0], xa[xa.len() - 1]);
+    let (first_b, last_b) = (xb[0], xb[xb.len() - 1]);
+    if last_a < first_b {
+        Ok(Paired {
+            a,
+            b,
+            xa,
+            xb,
+            swapped: false,
+        })
+    } else if last_b < first_a {
+        notes.push("swapped a and b: the segment drawn second was observed first".into());
+        Ok(Paired {
+            a: b,
+            b: a,
+            xa: xb,
+            xb: xa,
+            swapped: true,
+        })
+    } else {
+        rejected(format!(
+            "the observations interleave in time: segment a is seen from poses {}, segment b \
+             from poses {}; draw each segment where the map shows one pass of the robot",
+            span(&xa),
+            span(&xb)
+        ))
+    }
+}
+
+/// P = the weighted TLS line of the final S and its extent.
+fn refit(sel: &Selection, scans: &Scans, poses: &[Pose2], band: f64) -> Result<[[f64; 2]; 2]> {
+    let world: Vec<f64> = scans
+        .world(poses, &sel.rows)?
+        .into_iter()
+        .flatten()
+        .collect();
+    let seg = Segment::new(sel.drawn[0], sel.drawn[1]);
+    let fit = line_fit(Points::new(&world)?, &sel.weights, &seg, band)?;
+    Ok(fit.extent)
+}
+
+/// One pass's line under a drawing (docs/ALGORITHM.md §I.4).
+struct PassLine {
+    rows: Vec<Row>,
+    span: (i64, i64),
+    score: f64,
+    offset: f64,
+    turn: f64,
+}
+
+/// The pass whose own line best explains `drawn`: among the points within `search` of the
+/// drawing (and at most 0.3 m past its ends), split into passes (pose runs with no gap over
+/// `gap`), each pass's Cauchy-weighted TLS line; its inliers (within `2 sigma_em`) from poses
+/// with `min_points` or more of them. Returns the best and the runner-up's score.
+#[allow(clippy::too_many_arguments)]
+fn best_pass(
+    scans: &Scans,
+    flat: &[f64],
+    drawn: [[f64; 2]; 2],
+    search: f64,
+    sigma_em: f64,
+    closeness: f64,
+    pointing: f64,
+    gap: usize,
+    min_points: usize,
+) -> Result<Option<(PassLine, f64)>> {
+    let [p0, p1] = drawn;
+    let length = (p1[0] - p0[0]).hypot(p1[1] - p0[1]);
+    if !(length > 0.0 && search > 0.0) {
+        return Ok(None);
+    }
+    let dir = [(p1[0] - p0[0]) / length, (p1[1] - p0[1]) / length];
+    let normal = [-dir[1], dir[0]];
+    let seg = Segment::new(p0, p1);
+    let (world, rows) = scans.near(flat, &[seg], search + 0.3)?;
+    let pts: Vec<[f64; 2]> = world.flat.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+    // (owner, map row, world point), near the drawing, by owner (stable).
+    let mut near: Vec<(i64, usize, [f64; 2])> = Vec::new();
+    for (w, &k) in pts.iter().zip(&rows) {
+        let along = (w[0] - p0[0]) * dir[0] + (w[1] - p0[1]) * dir[1];
+        let across = (w[0] - p0[0]) * normal[0] + (w[1] - p0[1]) * normal[1];
+        if across.abs() <= search && along >= -0.3 && along <= length + 0.3 {
+            near.push((scans.owner(k) as i64, k, *w));
+        }
+    }
+    if near.len() < min_points {
+        return Ok(None);
+    }
+    near.sort_by_key(|r| r.0);
+    let sigma_t = std::f64::consts::SQRT_2 * pointing / length;
+    let mut found: Vec<PassLine> = Vec::new();
+    let mut lo = 0;
+    while lo < near.len() {
+        let mut hi = lo + 1;
+        while hi < near.len() && near[hi].0 - near[hi - 1].0 <= gap as i64 {
+            hi += 1;
+        }
+        let pass = &near[lo..hi];
+        lo = hi;
+        if pass.len() < 3 * min_points {
+            continue;
+        }
+        let flat_pts: Vec<f64> = pass.iter().flat_map(|r| r.2).collect();
+        let mut weights = vec![1.0; pass.len()];
+        let mut resid = vec![0.0; pass.len()];
+        let (mut phi, mut rho) = (0.0, 0.0);
+        for _ in 0..4 {
+            let fit = line_fit(Points::new(&flat_pts)?, &weights, &seg, 0.3)?;
+            (phi, rho) = (fit.phi, fit.rho);
+            let n = [phi.cos(), phi.sin()];
+            for ((r, w), p) in resid.iter_mut().zip(weights.iter_mut()).zip(pass) {
+                *r = p.2[0] * n[0] + p.2[1] * n[1] - rho;
+                *w = 1.0 / (1.0 + (*r / sigma_em).powi(2));
+            }
+        }
+        let mut inlier: Vec<bool> = resid.iter().map(|r| r.abs() <= 2.0 * sigma_em).collect();
+        let count = inlier.iter().filter(|x| **x).count();
+        if (count as f64) < (0.5 * pass.len() as f64).max(3.0 * min_points as f64) {
+            continue; // clutter or a corner, not a line
+        }
+        // T_p: only poses that see enough of it.
+        let mut per_pose: Vec<(i64, usize)> = Vec::new();
+        for (p, &ok) in pass.iter().zip(&inlier) {
+            if ok {
+                match per_pose.last_mut() {
+                    Some((q, c)) if *q == p.0 => *c += 1,
+                    _ => per_pose.push((p.0, 1)),
+                }
+            }
+        }
+        for (p, ok) in pass.iter().zip(inlier.iter_mut()) {
+            *ok = *ok && per_pose.iter().any(|(q, c)| *q == p.0 && *c >= min_points);
+        }
+        let n_in = inlier.iter().filter(|x| **x).count();
+        if n_in < 3 * min_points {
+            continue;
+        }
+        let n = [phi.cos(), phi.sin()];
+        let offset = 0.5
+            * ((p0[0] * n[0] + p0[1] * n[1] - rho).abs()
+                + (p1[0] * n[0] + p1[1] * n[1] - rho).abs());
+        let line_dir = [-n[1], n[0]];
+        let turn = (line_dir[0] * dir[0] + line_dir[1] * dir[1])
+            .abs()
+            .min(1.0)
+            .acos();
+        if turn > MAX_TURN {
+            continue; // a crossing wall, not the one drawn along
+        }
+        let score = (n_in as f64).ln()
+            - offset * offset / (2.0 * closeness * closeness)
+            - turn * turn / (2.0 * sigma_t * sigma_t);
+        let kept: Vec<Row> = pass
+            .iter()
+            .zip(&inlier)
+            .filter(|(_, ok)| **ok)
+            .map(|(p, _)| scans.row_of(p.1))
+            .collect();
+        found.push(PassLine {
+            rows: kept,
+            span: (pass[0].0, pass[pass.len() - 1].0),
+            score,
+            offset,
+            turn,
+        });
+    }
+    if found.is_empty() {
+        return Ok(None);
+    }
+    // Stable: the earliest pass on a tie.
+    found.sort_by(|x, y| y.score.total_cmp(&x.score));
+    let runner_up = found.get(1).map_or(f64::NEG_INFINITY, |f| f.score);
+    Ok(Some((found.swap_remove(0), runner_up)))
+}
+
+fn pass_note(name: char, p: &PassLine, runner_up: f64) -> String {
+    let other = if runner_up.is_finite() {
+        format!(
+            "score {:.2} against {:.2} for the next pass",
+            p.score, runner_up
+        )
+    } else {
+        "no other pass near it".into()
+    };
+    format!(
+        "segment {name}: no one line under it, so it was matched pass by pass: poses {}-{} ({} \
+         points), {:.2} m from the drawing and turned {:.1} deg ({other})",
+        p.span.0,
+        p.span.1,
+        p.rows.len(),
+        p.offset,
+        p.turn.to_degrees()
+    )
+}
+
+fn check_segment(name: char, seg: &[[f64; 2]; 2]) -> Result<()> {
+    if !seg.iter().flatten().all(|v| v.is_finite()) {
+        return rejected(format!(
+            "segment {name} has a non-finite coordinate; draw it again"
+        ));
+    }
+    let length = (seg[1][0] - seg[0][0]).hypot(seg[1][1] - seg[0][1]);
+    if length < crate::interpret::MIN_SEGMENT_LENGTH {
+        return rejected(format!(
+            "segment {name} has zero length ({length:.1e} m); drag along the feature instead of \
+             clicking"
+        ));
+    }
+    Ok(())
+}
+
+/// What `drawing` means on the map shown with `poses` (docs/ALGORITHM.md §3); with
+/// `nearest_visits`, both segments' visits are chosen jointly, each the pass nearest its
+/// drawing, even where the design's rules would keep the biggest.
+pub fn interpret(
+    scans: &Scans,
+    poses: &[Pose2],
+    drawing: &Drawing,
+    p: &InterpretParams,
+    nearest_visits: bool,
+) -> Result<Interpretation> {
+    if poses.len() != scans.num_poses() {
+        return Err(HitlError::Input(format!(
+            "poses must have {} rows like the map's, got {}",
+            scans.num_poses(),
+            poses.len()
+        )));
+    }
+    if poses.iter().any(|x| !x.is_finite()) {
+        return Err(HitlError::Input(
+            "poses contain non-finite values; give finite poses".into(),
+        ));
+    }
+    check_segment('a', &drawing.a)?;
+    check_segment('b', &drawing.b)?;
+    let sigma_h = p.sigma_h;
+    if !(sigma_h.is_finite() && sigma_h > 0.0) {
+        return rejected(format!(
+            "sigma_h must be a positive number of metres, got {sigma_h}"
+        ));
+    }
+    let band = p.candidate_band * sigma_h;
+    if band.is_nan() || band <= 0.0 {
+        return Err(HitlError::Input(
+            "config candidate_band must be > 0 (the band r_c would be empty)".into(),
+        ));
+    }
+    let search = p.search_band * sigma_h;
+    let t_p = p.min_points_per_pose;
+    let em = EmParams {
+        band,
+        sigma: p.sigma_em,
+        pi0: p.clutter_weight,
+        tol_m: p.em_tolerance_m,
+        tol_rad: p.em_tolerance_rad,
+        tol_pi: TOLERANCE_MIXING,
+        max_iterations: p.em_max_iterations,
+    };
+    let snap = (search > 0.0).then_some(SnapParams {
+        search_band: search,
+        sigma: p.sigma_em,
+        closeness: p.drawing_sigma * sigma_h,
+        pointing: sigma_h,
+        min_support: t_p,
+    });
+    let flat: Vec<f64> = poses.iter().flat_map(|x| [x.x, x.y, x.theta]).collect();
+    let segments = [
+        Segment::new(drawing.a[0], drawing.a[1]),
+        Segment::new(drawing.b[0], drawing.b[1]),
+    ];
+    let (world, rows) = scans.near(&flat, &segments, reach(&em, snap.as_ref()))?;
+    let mut fits = em_fit_near(&world, &rows, &segments, &em, snap.as_ref())?.into_iter();
+    let (Some(fit_a), Some(fit_b)) = (fits.next(), fits.next()) else {
+        return Err(HitlError::Solver(
+            "EM returned fewer fits than segments".into(),
+        ));
+    };
+    let mut a = select('a', drawing.a, fit_a, scans, t_p);
+    let mut b = select('b', drawing.b, fit_b, scans, t_p);
+    let mut notes: Vec<String> = [&a, &b].into_iter().filter_map(snap_note).collect();
+    for s in [&a, &b] {
+        notes.push(format!(
+            "segment {}: EM {} after {} iterations, {} of {} candidates on the line, {} from {} \
+             poses with >= {t_p} (log-likelihood {:.1})",
+            s.name,
+            if s.fit.converged {
+                "converged"
+            } else {
+                "stopped"
+            },
+            s.fit.iterations,
+            s.fit.num_inliers,
+            s.fit.candidates.len(),
+            s.rows.len(),
+            s.poses().len(),
+            s.fit.log_likelihood
+        ));
+    }
+    for s in [&mut a, &mut b] {
+        if s.rows.is_empty() && search > 0.0 && p.pass_by_pass {
+            // A blur of passes that disagree a little each: find the one drawn on by itself.
+            if let Some((found, runner_up)) = best_pass(
+                scans,
+                &flat,
+                s.drawn,
+                search,
+                p.sigma_em,
+                p.drawing_sigma * sigma_h,
+                sigma_h,
+                p.visit_gap,
+                t_p,
+            )? {
+                notes.push(pass_note(s.name, &found, runner_up));
+                s.weights = vec![1.0; found.rows.len()];
+                s.rows = found.rows;
+            }
+        }
+    }
+    let empty: Vec<&Selection> = [&a, &b].into_iter().filter(|s| s.rows.is_empty()).collect();
+    if !empty.is_empty() {
+        let which: Vec<String> = empty.iter().map(|s| s.name.to_string()).collect();
+        let details: Vec<String> = empty.iter().map(|s| why_empty(s, band, t_p)).collect();
+        return rejected(format!(
+            "no observations under segment{} {}; draw along a wall ({})",
+            if empty.len() > 1 { "s" } else { "" },
+            which.join(" and "),
+            details.join("; ")
+        ));
+    }
+    let sigma_c = p.drawing_sigma * sigma_h;
+    let close = |x: &[[f64; 2]; 2], y: &[[f64; 2]; 2]| {
+        x.iter()
+            .flatten()
+            .zip(y.iter().flatten())
+            .all(|(u, v)| (u - v).abs() <= 1e-9)
+    };
+    let reversed = [drawing.b[1], drawing.b[0]];
+    // One segment drawn twice points at one copy, whatever the visits under it.
+    let same_drawing = close(&drawing.a, &drawing.b) || close(&drawing.a, &reversed);
+    let gap = p.visit_gap;
+    // The design's pair rules first (each segment's biggest visit); only where they refuse are
+    // the visits chosen jointly, which keeps every drawing the rules accept as before.
+    let paired = if nearest_visits && !same_drawing {
+        joint_visits(&mut a, &mut b, scans, poses, gap, sigma_c, &mut notes)?;
+        pair_rules(a, b, gap, &mut notes)?
+    } else {
+        let mut trial = notes.clone();
+        match pair_rules(a.clone(), b.clone(), gap, &mut trial) {
+            Ok(paired) => {
+                notes = trial;
+                paired
+            }
+            Err(first) => {
+                if same_drawing
+                    || !joint_visits(&mut a, &mut b, scans, poses, gap, sigma_c, &mut notes)?
+                {
+                    return Err(first);
+                }
+                pair_rules(a, b, gap, &mut notes)?
+            }
+        }
+    };
+    let line_a = refit(&paired.a, scans, poses, band)?;
+    let line_b = refit(&paired.b, scans, poses, band)?;
+    for (name, [p0, q]) in [('a', line_a), ('b', line_b)] {
+        let length = (q[0] - p0[0]).hypot(q[1] - p0[1]);
+        if length.is_nan() || length < MIN_EXTENT_M {
+            return rejected(format!(
+                "the observations under segment {name} cover {length:.3} m of wall, too little \
+                 to give it a direction; draw along a longer stretch of wall"
+            ));
+        }
+    }
+    Ok(Interpretation {
+        mode: drawing.mode,
+        line_a,
+        line_b,
+        iterations: [paired.a.fit.iterations, paired.b.fit.iterations],
+        log_likelihood: [paired.a.fit.log_likelihood, paired.b.fit.log_likelihood],
+        s_a: paired.a.rows,
+        s_b: paired.b.rows,
+        x_a: paired.xa,
+        x_b: paired.xb,
+        swapped: paired.swapped,
+        notes,
+    })
+}
