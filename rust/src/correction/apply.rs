@@ -202,7 +202,18 @@ impl CorrectionEngine {
                 self.num_poses()
             ));
         }
-        let mut h = interpret(scans, current, drawing, &p.interpret, false)?;
+        // The map's own chi2 as shown, for the consistency guard, on the other core meanwhile.
+        let (h, before) = rayon::join(
+            || interpret(scans, current, drawing, &p.interpret, false),
+            || {
+                if p.consistency_guard > 0.0 {
+                    self.base_chi2(current)
+                } else {
+                    Ok(0.0)
+                }
+            },
+        );
+        let (mut h, before) = (h?, before?);
         let time_interpret = t0.elapsed().as_secs_f64();
         let sigma_h = p.interpret.sigma_h;
         if h.mode == RelationMode::Colocation && p.colocation_guard > 0.0 {
@@ -217,11 +228,32 @@ impl CorrectionEngine {
                 h.mode = RelationMode::Collinear;
             }
         }
-        let mut solved = self.correct(scans, current, &h, active, p)?;
-        if h.mode == RelationMode::Colocation && p.colocation_guard > 0.0 {
-            let mut alt = h.clone();
-            alt.mode = RelationMode::Collinear;
-            let alt_solved = self.correct(scans, current, &alt, active, p)?;
+        let guarded = h.mode == RelationMode::Colocation && p.colocation_guard > 0.0;
+        let mut alt = h.clone();
+        alt.mode = RelationMode::Collinear;
+        let (first, second) = if guarded {
+            // The two readings at once, each on its own engine (one per core where there are
+            // two): the same solves as one after the other.
+            let mut twin = self.twin.take();
+            let (first, second) = match twin.as_mut() {
+                Some(t) => rayon::join(
+                    || self.correct(scans, current, &h, active, p),
+                    || Some(t.correct(scans, current, &alt, active, p)),
+                ),
+                None => (self.correct(scans, current, &h, active, p), None),
+            };
+            self.twin = twin;
+            let second = match second {
+                Some(s) => s,
+                None => self.correct(scans, current, &alt, active, p),
+            };
+            (first, Some(second))
+        } else {
+            (self.correct(scans, current, &h, active, p), None)
+        };
+        let mut solved = first?;
+        if let Some(alt_solved) = second {
+            let alt_solved = alt_solved?;
             let cost = self.base_chi2(&solved.poses)?;
             let alt_cost = self.base_chi2(&alt_solved.poses)?;
             if cost - alt_cost > p.colocation_guard {
@@ -236,7 +268,8 @@ impl CorrectionEngine {
             }
         }
         if p.consistency_guard > 0.0 {
-            (h, solved) = self.consistency_guard(scans, current, drawing, h, solved, active, p)?;
+            (h, solved) =
+                self.consistency_guard(scans, current, drawing, h, solved, before, active, p)?;
         }
         Ok(Applied {
             interpretation: h,
@@ -258,10 +291,20 @@ impl CorrectionEngine {
         drawing: &Drawing,
         h: Interpretation,
         solved: Solved,
+        before: f64,
         active: &[Active],
         p: &ApplyParams,
     ) -> Result<(Interpretation, Solved)> {
-        match self.guard_alternative(scans, current, drawing, &h, &solved.poses, active, p)? {
+        match self.guard_alternative(
+            scans,
+            current,
+            drawing,
+            &h,
+            &solved.poses,
+            before,
+            active,
+            p,
+        )? {
             None => Ok((h, solved)),
             Some((alt, alt_solved)) => Ok((alt, alt_solved)),
         }
@@ -273,6 +316,7 @@ impl CorrectionEngine {
     /// `None`: within the limit, apply it. Otherwise it is tried again with each segment's pass
     /// nearest its drawing; if that is within the limit, that interpretation (with a note) and
     /// its solution are returned, otherwise the correction is refused with the figures.
+    /// `before`: the chi2 of the map's own factors at `current`.
     #[allow(clippy::too_many_arguments)]
     pub fn guard_alternative(
         &mut self,
@@ -281,13 +325,13 @@ impl CorrectionEngine {
         drawing: &Drawing,
         h: &Interpretation,
         new_poses: &[Pose2],
+        before: f64,
         active: &[Active],
         p: &ApplyParams,
     ) -> Result<Option<(Interpretation, Solved)>> {
         let dof = 3 * self.num_base_factors();
         let limit = chi2_limit(dof, p.consistency_z);
         let step = p.consistency_z * (2.0 * dof as f64).sqrt();
-        let before = self.base_chi2(current)?;
         let cost = self.base_chi2(new_poses)?;
         let allowed = limit.max(before + step);
         if cost <= allowed {

@@ -164,6 +164,9 @@ pub struct CorrectionEngine {
     analyses: usize,
     /// The map's chain, for back-propagation (`apply`, `explicit_and_backpropagate`).
     chain: Option<Chain>,
+    /// A second engine over the same factors, so that `apply` can solve a drawing's two
+    /// readings (the colocation guard's colocation and collinear) at once, one per core.
+    pub(super) twin: Option<Box<CorrectionEngine>>,
 }
 
 impl CorrectionEngine {
@@ -179,6 +182,7 @@ impl CorrectionEngine {
             patterns: Vec::new(),
             analyses: 0,
             chain: None,
+            twin: None,
         })
     }
 
@@ -194,7 +198,24 @@ impl CorrectionEngine {
     /// Gives the engine its map's chain (back-propagation needs it).
     pub fn set_chain(&mut self, chain: Chain) -> Result<()> {
         chain.validate(self.num_poses())?;
+        if let Some(twin) = self.twin.as_mut() {
+            twin.set_chain(chain.clone())?;
+        }
         self.chain = Some(chain);
+        Ok(())
+    }
+
+    /// Gives the engine a twin over `base`, the same factors as its own (built again by the
+    /// caller): `apply` then solves the colocation guard's two readings in parallel.
+    pub fn set_twin(&mut self, base: FactorGraph) -> Result<()> {
+        if base.num_factors() != self.base_factors || base.num_poses() != self.num_poses() {
+            return input("the twin of a correction engine must hold the same factors");
+        }
+        let mut twin = CorrectionEngine::new(base)?;
+        if let Some(chain) = &self.chain {
+            twin.set_chain(chain.clone())?;
+        }
+        self.twin = Some(Box::new(twin));
         Ok(())
     }
 
@@ -210,6 +231,9 @@ impl CorrectionEngine {
     /// Forgets the kept analyses (the next solve of any structure computes its own).
     pub fn clear_cache(&mut self) {
         self.patterns.clear();
+        if let Some(twin) = self.twin.as_mut() {
+            twin.clear_cache();
+        }
     }
 
     /// chi2 of the map's own relative-pose factors at `poses` (the robot's measurements only).

@@ -20,6 +20,8 @@ use super::{
     canonical_normal, dot, sub, tangent, world_points_near, Point, Points, Segment, SegmentFrame,
     WorldPoints,
 };
+use rayon::prelude::*;
+
 use crate::error::{HitlError, Result};
 pub(super) use crate::geometry::weighted_fit;
 
@@ -360,8 +362,9 @@ pub fn em_fit_near(
     }
     let world_pts = Points::new(&world.flat)?;
     let grid = GridIndex::build_in(world_pts, params.band, world.bounds)?;
+    // The segments are independent: one per core.
     segments
-        .iter()
+        .par_iter()
         .map(|seg| {
             let snapped = match search {
                 Some(s) => snap(world_pts, &grid, seg, s)?,

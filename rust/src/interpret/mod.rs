@@ -196,6 +196,10 @@ pub fn world_points_near(
 pub struct ScanBlocks {
     /// Per block: its pose, first map row, number of points, robot-frame centre and radius.
     blocks: Vec<(usize, usize, usize, Point, f64)>,
+    /// Per pose: its first block (`scans[i]..scans[i + 1]` are pose i's blocks) and the
+    /// robot-frame circle around all of them, so a scan far from every segment is skipped whole.
+    scans: Vec<usize>,
+    circles: Vec<(Point, f64)>,
 }
 
 impl ScanBlocks {
@@ -211,8 +215,28 @@ impl ScanBlocks {
         }
         points.check_finite("point")?;
         let mut blocks = Vec::with_capacity(points.len() / NEAR_BLOCK + offsets.len());
+        let mut scans = Vec::with_capacity(offsets.len());
+        let mut circles = Vec::with_capacity(offsets.len());
         for (i, w) in offsets.windows(2).enumerate() {
             let (first, end) = (w[0] as usize, w[1] as usize);
+            scans.push(blocks.len());
+            let mut whole = Bounds::EMPTY;
+            for k in first..end {
+                whole.add([points.flat[2 * k], points.flat[2 * k + 1]]);
+            }
+            circles.push(if first < end {
+                let mid = [
+                    0.5 * (whole.min[0] + whole.max[0]),
+                    0.5 * (whole.min[1] + whole.max[1]),
+                ];
+                let half = [
+                    0.5 * (whole.max[0] - whole.min[0]),
+                    0.5 * (whole.max[1] - whole.min[1]),
+                ];
+                (mid, dot(half, half).sqrt())
+            } else {
+                ([0.0, 0.0], 0.0)
+            });
             for start in (first..end).step_by(NEAR_BLOCK) {
                 let len = NEAR_BLOCK.min(end - start);
                 let mut boxed = Bounds::EMPTY;
@@ -230,7 +254,12 @@ impl ScanBlocks {
                 blocks.push((i, start, len, mid, dot(half, half).sqrt()));
             }
         }
-        Ok(Self { blocks })
+        scans.push(blocks.len());
+        Ok(Self {
+            blocks,
+            scans,
+            circles,
+        })
     }
 
     /// [`world_points_near`] from the kept blocks: the same points in the same order (map
@@ -246,28 +275,34 @@ impl ScanBlocks {
         let mut out = Vec::new();
         let mut rows = Vec::new();
         let mut bounds = Bounds::EMPTY;
-        let mut current = usize::MAX;
-        let (mut c, mut s, mut t) = (1.0, 0.0, [0.0, 0.0]);
-        for &(i, start, len, mid, radius) in &self.blocks {
-            if i != current {
-                current = i;
-                let pose = &poses[3 * i..3 * i + 3];
-                (s, c) = pose[2].sin_cos();
-                t = [pose[0], pose[1]];
-            }
-            let centre = transform(c, s, t, mid);
+        let near = |centre: Point, radius: f64| {
+            // A margin far above rounding, so the cut never drops a candidate.
             let reach = radius + band + 1e-9 * (1.0 + radius + band + dot(centre, centre).sqrt());
-            if !segments
+            segments
                 .iter()
                 .any(|seg| segment_distance(centre, seg) <= reach)
-            {
+        };
+        for (i, pose) in poses.chunks_exact(3).enumerate() {
+            let (first, end) = (self.scans[i], self.scans[i + 1]);
+            if first == end {
                 continue;
             }
-            for k in start..start + len {
-                let world = transform(c, s, t, [points.flat[2 * k], points.flat[2 * k + 1]]);
-                bounds.add(world);
-                out.extend_from_slice(&world);
-                rows.push(k);
+            let (s, c) = pose[2].sin_cos();
+            let t = [pose[0], pose[1]];
+            let (mid, radius) = self.circles[i];
+            if !near(transform(c, s, t, mid), radius) {
+                continue;
+            }
+            for &(_, start, len, mid, radius) in &self.blocks[first..end] {
+                if !near(transform(c, s, t, mid), radius) {
+                    continue;
+                }
+                for k in start..start + len {
+                    let world = transform(c, s, t, [points.flat[2 * k], points.flat[2 * k + 1]]);
+                    bounds.add(world);
+                    out.extend_from_slice(&world);
+                    rows.push(k);
+                }
             }
         }
         (WorldPoints { flat: out, bounds }, rows)
@@ -528,6 +563,49 @@ mod tests {
         let inf = [0.0, 0.0, f64::INFINITY, 1.0];
         let err = world_points(&[0.0; 3], Points::new(&inf).unwrap(), &[0, 2]).unwrap_err();
         assert!(err.to_string().contains("row 1"), "{err}");
+    }
+
+    #[test]
+    fn scan_blocks_keep_exactly_the_points_of_the_per_point_cut() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        for _ in 0..20 {
+            let n = rng.random_range(1..40);
+            let mut offsets = vec![0i64];
+            let mut flat = Vec::new();
+            for _ in 0..n {
+                let k = rng.random_range(0..100);
+                for _ in 0..k {
+                    flat.push(rng.random_range(-8.0..8.0));
+                    flat.push(rng.random_range(-8.0..8.0));
+                }
+                offsets.push(offsets.last().unwrap() + k);
+            }
+            let poses: Vec<f64> = (0..n)
+                .flat_map(|_| {
+                    [
+                        rng.random_range(-20.0..20.0),
+                        rng.random_range(-20.0..20.0),
+                        rng.random_range(-4.0..4.0),
+                    ]
+                })
+                .collect();
+            let segments = [
+                Segment::new(
+                    [rng.random_range(-20.0..20.0), 0.0],
+                    [3.0, rng.random_range(-9.0..9.0)],
+                ),
+                Segment::new([-5.0, -5.0], [rng.random_range(-20.0..20.0), 2.0]),
+            ];
+            let pts = Points::new(&flat).unwrap();
+            let blocks = ScanBlocks::new(pts, &offsets).unwrap();
+            for band in [0.1, 1.0, 4.0] {
+                let want = world_points_near(&poses, pts, &offsets, &segments, band).unwrap();
+                let got = blocks.world_points_near(&poses, pts, &segments, band);
+                assert_eq!(got.1, want.1);
+                assert_eq!(got.0, want.0);
+            }
+        }
     }
 
     #[test]

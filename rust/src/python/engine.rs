@@ -301,9 +301,18 @@ impl PyCorrectionEngine {
             PyReadonlyArray1<'_, f64>,
         )>,
     ) -> PyResult<Self> {
-        let graph = PyGraph::build(py, num_poses, edges, measurements, information, anchor)?;
+        let graph = PyGraph::build(
+            py,
+            num_poses,
+            edges.clone(),
+            measurements.clone(),
+            information.clone(),
+            anchor,
+        )?;
+        let twin = PyGraph::build(py, num_poses, edges, measurements, information, anchor)?;
         let build = || {
             let mut engine = CorrectionEngine::new(graph)?;
+            engine.set_twin(twin)?;
             if let Some((rot, trans, steps, turns)) = &chain {
                 let steps = steps
                     .as_array()
@@ -439,7 +448,10 @@ impl PyCorrectionEngine {
         let out = py
             .detach(|| {
                 guarded(|| {
-                    engine.guard_alternative(scans, &current, &drawn, &hh, &solved, &specs, &params)
+                    let before = engine.base_chi2(&current)?;
+                    engine.guard_alternative(
+                        scans, &current, &drawn, &hh, &solved, before, &specs, &params,
+                    )
                 })
             })
             .map_err(|e| to_py(py, e))?;
