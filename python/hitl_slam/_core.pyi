@@ -1,5 +1,6 @@
 """Type stubs for the compiled core (checked by ``python -m mypy.stubtest hitl_slam._core``)."""
 
+from collections.abc import Callable
 from typing import Any, final
 
 import numpy as np
@@ -21,6 +22,7 @@ __all__ = [
     "inconsistency",
     "line_fit",
     "match_consecutive",
+    "run_slam",
     "segment_candidates",
     "wrap_angle",
 ]
@@ -55,6 +57,31 @@ def match_consecutive(
 ) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Scan k+1 matched against scan k from guesses[k]: (ok, poses, covariances, overlap); ok
     where at least ``min_overlap`` of scan k+1's points (and 25) pair with scan k's lines."""
+
+def run_slam(
+    points: NDArray[np.float64],
+    offsets: NDArray[np.int64],
+    odometry: NDArray[np.float64],
+    *,
+    progress: Callable[[int], object] | None = None,
+    keyframe_distance: float = 0.2,
+    keyframe_angle_deg: float = 10.0,
+    max_range: float = 20.0,
+    loop_min_score: float = 0.55,
+    dcs: float = 1.0,
+) -> tuple[
+    NDArray[np.float64],
+    NDArray[np.int64],
+    NDArray[np.float64],
+    NDArray[np.int64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    int,
+]:
+    """The scan-matching front end over a log: (poses, keyframes, step information, loop
+    closure pairs, their measurements, information, scores, robust weights, submaps)."""
 
 @final
 class IterationRecord:

@@ -85,14 +85,14 @@ impl ScanMatch {
 
 /// A reference scan ready for matching: its points in an R*-tree, with a unit normal where its
 /// neighbourhood is a line.
-struct Reference {
+pub struct Reference {
     tree: RTree<GeomWithData<[f64; 2], usize>>,
     points: Vec<[f64; 2]>,
     normals: Vec<Option<[f64; 2]>>,
 }
 
 impl Reference {
-    fn new(points: &[[f64; 2]], radius: f64) -> Self {
+    pub fn new(points: &[[f64; 2]], radius: f64) -> Self {
         let tree = RTree::bulk_load(
             points
                 .iter()
@@ -154,7 +154,7 @@ impl Reference {
     }
 
     /// Point-to-line ICP from `start`; returns the pose, the final Hessian and its residuals.
-    fn icp(&self, current: &[[f64; 2]], start: [f64; 3], p: &IcpParams) -> ScanMatch {
+    pub fn icp(&self, current: &[[f64; 2]], start: [f64; 3], p: &IcpParams) -> ScanMatch {
         let mut pose = start;
         let mut gate = p.max_pair_distance;
         let mut last = (Matrix3::zeros(), 0usize, 0.0f64, 0.0f64);

@@ -1,11 +1,12 @@
 //! Python binding of the front end (`crate::frontend`): scan-to-scan matching along a chain,
-//! with the GIL released.
+//! and the whole front end over a log (`run_slam`), with the GIL released.
 
 use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 
-use super::{flat_rows, guarded, input_err, to_py};
+use super::{flat_rows, guarded, input_err, read_poses, to_py};
+use crate::frontend::slam::{run, SlamParams};
 use crate::frontend::{match_chain, IcpParams};
 
 /// Matches every scan `k + 1` against scan `k` (robot-frame `points` `(P, 2)`, `offsets`
@@ -72,7 +73,121 @@ fn match_consecutive<'py>(
     ))
 }
 
+/// The front end's answer for Python: poses `(N, 3)`, keyframe scan indices `(K,)`, per-scan
+/// step information `(N, 3, 3)`, loop closures `(L, 2)` scan indices with their measurements
+/// `(L, 3)`, information `(L, 3, 3)`, scores `(L,)` and robust weights `(L,)`, and the number
+/// of submaps.
+type PySlam<'py> = (
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<i64>>,
+    Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray2<i64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    usize,
+);
+
+/// Runs the scan-matching front end (`crate::frontend::slam`) over a log: robot-frame `points`
+/// `(P, 2)` by scan (`offsets` `(N + 1,)`) and the odometry `(N, 3)`. `progress(done)` (a
+/// callable, optional) is called every 500 scans. The GIL is released except for those calls.
+#[pyfunction]
+#[pyo3(signature = (
+    points, offsets, odometry, *, progress = None, keyframe_distance = 0.2,
+    keyframe_angle_deg = 10.0, max_range = 20.0, loop_min_score = 0.55, dcs = 1.0
+))]
+#[allow(clippy::too_many_arguments)]
+fn run_slam<'py>(
+    py: Python<'py>,
+    points: PyReadonlyArray2<'py, f64>,
+    offsets: PyReadonlyArray1<'py, i64>,
+    odometry: PyReadonlyArray2<'py, f64>,
+    progress: Option<Py<PyAny>>,
+    keyframe_distance: f64,
+    keyframe_angle_deg: f64,
+    max_range: f64,
+    loop_min_score: f64,
+    dcs: f64,
+) -> PyResult<PySlam<'py>> {
+    let params = SlamParams {
+        keyframe_distance,
+        keyframe_angle: keyframe_angle_deg.to_radians(),
+        max_range,
+        loop_min_score,
+        dcs,
+        ..SlamParams::default()
+    };
+    let odometry = read_poses(&odometry).map_err(|e| to_py(py, e))?;
+    let (points, offsets) = (points.as_array(), offsets.as_array());
+    let read = || {
+        let pts = flat_rows(points, 2, "points")?;
+        let off = offsets
+            .iter()
+            .map(|&o| usize::try_from(o).map_err(|_| input_err("offsets must be >= 0")))
+            .collect::<Result<Vec<usize>, _>>()?;
+        if off.first() != Some(&0)
+            || off.last() != Some(&(pts.len() / 2))
+            || off.windows(2).any(|w| w[0] > w[1])
+        {
+            return Err(input_err(
+                "offsets must rise from 0 to the number of points",
+            ));
+        }
+        Ok(off
+            .windows(2)
+            .map(|w| {
+                pts[2 * w[0]..2 * w[1]]
+                    .chunks_exact(2)
+                    .map(|c| [c[0], c[1]])
+                    .collect::<Vec<_>>()
+            })
+            .collect::<Vec<_>>())
+    };
+    let scans = guarded(read).map_err(|e| to_py(py, e))?;
+    let out = py
+        .detach(|| {
+            guarded(|| {
+                let mut report = |done: usize| {
+                    if let Some(cb) = &progress {
+                        // A failing callback only loses the progress display.
+                        Python::attach(|py| {
+                            let _ = cb.call1(py, (done,));
+                        });
+                    }
+                };
+                run(&scans, &odometry, &params, &mut report)
+            })
+        })
+        .map_err(|e| to_py(py, e))?;
+    let n = out.poses.len();
+    let l = out.loops.len();
+    let poses = Array2::from_shape_fn((n, 3), |(i, j)| out.poses[i].to_array()[j]);
+    let keyframes = Array1::from_iter(out.keyframes.iter().map(|&k| k as i64));
+    let step = Array3::from_shape_fn((n, 3, 3), |(i, a, b)| out.step_information[i][a][b]);
+    let pairs = Array2::from_shape_fn((l, 2), |(i, j)| {
+        let c = &out.loops[i];
+        out.keyframes[if j == 0 { c.from } else { c.to }] as i64
+    });
+    let z = Array2::from_shape_fn((l, 3), |(i, j)| out.loops[i].measurement.to_array()[j]);
+    let info = Array3::from_shape_fn((l, 3, 3), |(i, a, b)| out.loops[i].information[a][b]);
+    let scores = Array1::from_iter(out.loops.iter().map(|c| c.score));
+    let weights = Array1::from_iter(out.loops.iter().map(|c| c.weight));
+    Ok((
+        poses.into_pyarray(py),
+        keyframes.into_pyarray(py),
+        step.into_pyarray(py),
+        pairs.into_pyarray(py),
+        z.into_pyarray(py),
+        info.into_pyarray(py),
+        scores.into_pyarray(py),
+        weights.into_pyarray(py),
+        out.submaps,
+    ))
+}
+
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(match_consecutive, m)?)?;
+    m.add_function(wrap_pyfunction!(run_slam, m)?)?;
     Ok(())
 }
