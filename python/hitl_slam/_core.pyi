@@ -68,7 +68,7 @@ def run_slam(
     keyframe_angle_deg: float = 10.0,
     max_range: float = 20.0,
     loop_min_score: float = 0.55,
-    dcs: float = 1.0,
+    dcs: float = 10.0,
 ) -> tuple[
     NDArray[np.float64],
     NDArray[np.int64],

@@ -36,8 +36,13 @@ pub struct SlamParams {
     pub keyframe_angle: f64,
     /// Points farther than this from the robot are not matched.
     pub max_range: f64,
-    /// At most this many points per scan in the correlative search (evenly taken).
+    /// At most this many points per scan in the correlative search (evenly taken), from those
+    /// within `search_range` (the search's angular step is set by the farthest point).
     pub search_points: usize,
+    pub search_range: f64,
+    /// ICP from the odometry's prediction is kept, without a correlative search, when it pairs
+    /// at least this share of the scan and stays well inside the local window.
+    pub direct_overlap: f64,
     pub local_keyframes: usize,
     pub local_resolution: f64,
     pub local_window: Window,
@@ -47,6 +52,9 @@ pub struct SlamParams {
     /// The loop window grows by this fraction of the distance travelled since the submap.
     pub loop_growth: f64,
     pub loop_max_linear: f64,
+    /// A submap is searched when the keyframe's estimate is within the window plus this of the
+    /// path the submap was built along.
+    pub loop_reach: f64,
     pub loop_min_score: f64,
     /// Loop closures are searched at every this-many keyframes.
     pub loop_every: usize,
@@ -64,6 +72,8 @@ impl Default for SlamParams {
             keyframe_angle: 10f64.to_radians(),
             max_range: 20.0,
             search_points: 150,
+            search_range: 10.0,
+            direct_overlap: 0.7,
             local_keyframes: 15,
             local_resolution: 0.05,
             local_window: Window {
@@ -78,11 +88,12 @@ impl Default for SlamParams {
             },
             loop_growth: 0.05,
             loop_max_linear: 5.0,
+            loop_reach: 2.0,
             loop_min_score: 0.55,
             loop_every: 3,
             loop_min_overlap: 0.6,
             optimize_every: 25,
-            dcs: 1.0,
+            dcs: 10.0,
         }
     }
 }
@@ -140,7 +151,8 @@ struct Submap {
     points: Vec<Point>,
     grid: LikelihoodGrid,
     reference: Option<Reference>,
-    centre: Point,
+    /// Its keyframes' positions in its frame.
+    path: Vec<Point>,
 }
 
 struct Keyframe {
@@ -180,6 +192,20 @@ fn subsample(points: &[Point], n: usize) -> Vec<Point> {
     }
     let step = points.len() as f64 / n as f64;
     (0..n).map(|k| points[(k as f64 * step) as usize]).collect()
+}
+
+/// The points a correlative search scores: those within `search_range` (the angular step of
+/// the search shrinks with the farthest point), at most `search_points` of them.
+fn search_points(scan: &[Point], params: &SlamParams) -> Vec<Point> {
+    let near: Vec<Point> = scan
+        .iter()
+        .copied()
+        .filter(|p| p[0].hypot(p[1]) <= params.search_range)
+        .collect();
+    subsample(
+        if near.len() >= 10 { &near } else { scan },
+        params.search_points,
+    )
 }
 
 fn to_array(p: Pose2) -> [f64; 3] {
@@ -264,10 +290,23 @@ pub fn run(
         let mut info = diagonal(fallback);
         if let Some((grid, reference)) = &local {
             if scan.len() >= 10 {
-                let sparse = subsample(scan, params.search_points);
-                let start = search(grid, &sparse, to_array(predicted), params.local_window, 0.1)
-                    .map_or(to_array(predicted), |f| f.pose);
-                let refined = reference.icp(scan, start, &icp);
+                // ICP from the odometry's prediction first; the correlative search (the
+                // expensive, robust start) only where that does not match well.
+                let direct = reference.icp(scan, to_array(predicted), &icp);
+                let moved = predicted.between(Pose2::from_array(direct.pose));
+                let (start, refined) = if direct.ok
+                    && direct.overlap >= params.direct_overlap
+                    && moved.translation_len() <= 0.5 * params.local_window.linear
+                    && moved.theta.abs() <= 0.5 * params.local_window.angular
+                {
+                    (to_array(predicted), direct)
+                } else {
+                    let sparse = search_points(scan, params);
+                    let start =
+                        search(grid, &sparse, to_array(predicted), params.local_window, 0.1)
+                            .map_or(to_array(predicted), |f| f.pose);
+                    (start, reference.icp(scan, start, &icp))
+                };
                 let moved = Pose2::from_array(start).between(Pose2::from_array(refined.pose));
                 if refined.ok
                     && moved.translation_len() <= params.local_window.linear
@@ -311,15 +350,22 @@ pub fn run(
 
         // Loop closures against finished submaps near the estimate.
         if kf % params.loop_every == 0 && scan.len() >= 10 {
-            let sparse = subsample(scan, params.search_points);
+            let sparse = search_points(scan, params);
             for sm in submaps.iter_mut() {
                 let origin = &keyframes[sm.origin];
                 let since = (travelled - origin.travelled).max(0.0);
                 let linear = (params.loop_window.linear + params.loop_growth * since)
                     .min(params.loop_max_linear);
-                let centre = origin.pose.transform_point(sm.centre);
-                let dist = (centre[0] - pose.x).hypot(centre[1] - pose.y);
-                if dist > linear + params.max_range * 0.5 {
+                if kf < sm.origin + 2 * params.submap_keyframes {
+                    continue; // the last submaps: their match is the local map's, not a loop
+                }
+                // Near the path the submap was built along (its keyframes' positions).
+                let here = origin.pose.between(pose).translation();
+                let near = sm
+                    .path
+                    .iter()
+                    .any(|q| (q[0] - here[0]).hypot(q[1] - here[1]) <= linear + params.loop_reach);
+                if !near {
                     continue;
                 }
                 let guess = origin.pose.between(pose);
@@ -385,16 +431,16 @@ pub fn run(
                 let rel = o.between(key.pose);
                 pts.extend(scans[key.scan].iter().map(|p| rel.transform_point(*p)));
             }
-            let c = pts
+            let path = keyframes[origin..=kf]
                 .iter()
-                .fold([0.0, 0.0], |a, p| [a[0] + p[0], a[1] + p[1]]);
-            let m = pts.len().max(1) as f64;
+                .map(|key| o.between(key.pose).translation())
+                .collect();
             submaps.push(Submap {
                 origin,
                 grid: LikelihoodGrid::new(&pts, params.loop_resolution, params.loop_resolution, 5),
                 points: pts,
                 reference: None,
-                centre: [c[0] / m, c[1] / m],
+                path,
             });
         }
         if k % 500 == 0 {

@@ -95,7 +95,7 @@ type PySlam<'py> = (
 #[pyfunction]
 #[pyo3(signature = (
     points, offsets, odometry, *, progress = None, keyframe_distance = 0.2,
-    keyframe_angle_deg = 10.0, max_range = 20.0, loop_min_score = 0.55, dcs = 1.0
+    keyframe_angle_deg = 10.0, max_range = 20.0, loop_min_score = 0.55, dcs = 10.0
 ))]
 #[allow(clippy::too_many_arguments)]
 fn run_slam<'py>(
