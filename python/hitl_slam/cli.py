@@ -32,6 +32,17 @@ if TYPE_CHECKING:
 
 T = TypeVar("T")
 
+_SLAM_EPILOG = """\
+examples:
+  hitl-slam slam intel.clf.bz2 -o intel.hitl          # then: hitl-slam serve intel.hitl
+  hitl-slam slam fr079.clf.bz2 -o fr079.g2o
+  hitl-slam metrics intel.hitl --relations intel.relations
+
+The output map's poses are the front end's; its factors are the matched steps between
+consecutive scans and the loop closures the final solve kept. The summary counts keyframes,
+loop closures accepted and rejected, and the speed against the log's own duration.
+"""
+
 _SOLVE_EPILOG = """\
 examples:
   hitl-slam solve M3500.g2o -o M3500-optimized.g2o
@@ -481,6 +492,66 @@ def _write_correct_outputs(
         raise
 
 
+def _cmd_slam(args: argparse.Namespace) -> int:
+    from hitl_slam.slam import slam
+
+    out = Path(args.output)
+    _check_map_output(out, (".hitl",))
+    _refuse_overwriting_inputs(_outputs_of(out), [args.log], args.force)
+    if out.suffix.lower() == ".hitl" and out.exists():
+        raise InputError(
+            f"{out}: already exists; a session file is never overwritten: choose another name or "
+            "delete the old one"
+        )
+    raw = _load_map(args, args.log)
+    if not args.quiet:
+        print(f"{args.log}: {raw.num_poses} scans, {raw.num_points} points")
+    bar = None
+    if not args.quiet and sys.stderr.isatty():
+        from tqdm import tqdm
+
+        bar = tqdm(total=raw.num_poses, desc="front end", unit="scan", file=sys.stderr)
+    duration = (
+        None
+        if raw.timestamps is None or raw.num_poses < 2
+        else float(raw.timestamps[-1] - raw.timestamps[0])
+    )
+    started = time.perf_counter()
+
+    def progress(done: int, total: int) -> None:
+        if bar is None:
+            return
+        bar.n = done
+        elapsed = time.perf_counter() - started
+        if duration is not None and elapsed > 0 and total > 0:
+            bar.set_postfix_str(f"{duration * done / total / elapsed:.1f}x real time")
+        bar.refresh()
+
+    try:
+        result = slam(
+            raw,
+            progress=progress,
+            keyframe_distance=args.keyframe_distance,
+            keyframe_angle_deg=args.keyframe_angle,
+            max_range=args.match_range,
+            loop_min_score=args.loop_min_score,
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    if out.suffix.lower() == ".hitl":
+        from hitl_slam.session import Session
+
+        with Session.new(result.map) as session:
+            session.write_journal(out)
+    else:
+        from hitl_slam.io.export import export
+
+        _with_progress("writing", args.quiet, lambda: export(result.map, result.map.poses, out))
+    print(f"{result.summary()}; wrote {out}")
+    return 0
+
+
 def _cmd_export(args: argparse.Namespace) -> int:
 
     out = Path(args.output)
@@ -896,6 +967,60 @@ def build_parser() -> argparse.ArgumentParser:
     _add_force(correct)
     correct.add_argument("-q", "--quiet", action="store_true", help="only the summary line")
     correct.set_defaults(func=_cmd_correct)
+
+    slam_cmd = sub.add_parser(
+        "slam",
+        help="build a map from a raw laser log with the scan-matching front end",
+        description=(
+            "Run the scan-matching front end over a raw laser log (CARMEN .clf/.log, optionally "
+            ".gz/.bz2): every scan matched to the local map (correlative search, then "
+            "point-to-line ICP), keyframes and submaps, loop closures found by branch and bound "
+            "and weighed by dynamic covariance scaling. Writes the map: a session (.hitl, ready "
+            "for `hitl-slam serve`) or any export format."
+        ),
+        epilog=_SLAM_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    slam_cmd.add_argument("log", metavar="LOG", help="the raw log (CARMEN .clf/.log[.gz|.bz2])")
+    _add_max_range(slam_cmd)
+    slam_cmd.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        metavar="OUT",
+        help="output: .hitl, .covars, .g2o, .pgm, ...",
+    )
+    slam_cmd.add_argument(
+        "--keyframe-distance",
+        type=float,
+        default=0.2,
+        metavar="M",
+        help="a scan that moved this far since the last keyframe becomes one (default 0.2)",
+    )
+    slam_cmd.add_argument(
+        "--keyframe-angle",
+        type=float,
+        default=10.0,
+        metavar="DEG",
+        help="... or turned this much (default 10)",
+    )
+    slam_cmd.add_argument(
+        "--match-range",
+        type=float,
+        default=20.0,
+        metavar="M",
+        help="points farther than this are not matched (default 20)",
+    )
+    slam_cmd.add_argument(
+        "--loop-min-score",
+        type=float,
+        default=0.55,
+        metavar="S",
+        help="a loop closure needs this correlative score, 0..1 (default 0.55)",
+    )
+    _add_force(slam_cmd)
+    slam_cmd.add_argument("-q", "--quiet", action="store_true", help="only the summary line")
+    slam_cmd.set_defaults(func=_cmd_slam)
 
     export = sub.add_parser(
         "export",

@@ -1,0 +1,152 @@
+"""From a raw laser log to a consistent map: the scan-matching front end of the Rust core
+(``rust/src/frontend/slam.rs``; docs/ALGORITHM.md §F) run over a :class:`~hitl_slam.map.Map`
+whose poses are the log's odometry, giving a map whose poses are the front end's and whose
+factors are what it measured: each step between consecutive scans (from their matches) and the
+loop closures the final solve kept. A person can then repair what the front end got wrong.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hitl_slam import _core
+from hitl_slam.errors import InputError
+from hitl_slam.geometry import chain_steps
+from hitl_slam.map import InformationSource, Map
+
+__all__ = ["LoopClosures", "SlamResult", "slam"]
+
+FloatArray = NDArray[np.float64]
+
+REJECTED_WEIGHT = 0.5
+"""A loop closure the final solve's dynamic covariance scaling weighs below this is rejected."""
+
+
+@dataclass(frozen=True)
+class LoopClosures:
+    """Every loop closure the front end found: scan pairs ``(L, 2)``, the matched relative pose
+    of the second scan in the first's frame ``(L, 3)``, its information ``(L, 3, 3)``, the
+    correlative score (mean likelihood, 0..1) and the final solve's robust weight (1: fully
+    trusted; below :data:`REJECTED_WEIGHT`: rejected)."""
+
+    pairs: NDArray[np.int64]
+    measurements: FloatArray
+    information: FloatArray
+    scores: FloatArray
+    weights: FloatArray
+
+    @property
+    def accepted(self) -> NDArray[np.bool_]:
+        return self.weights >= REJECTED_WEIGHT
+
+
+@dataclass(frozen=True)
+class SlamResult:
+    """The map the front end built (poses per scan; factors: the matched steps and the accepted
+    loop closures), its keyframes (scan indices), every loop closure, and the timing."""
+
+    map: Map
+    keyframes: NDArray[np.int64]
+    loop_closures: LoopClosures
+    submaps: int
+    time_s: float
+    duration_s: float | None  # [s] of data in the log (timestamps), if known
+
+    @property
+    def real_time_factor(self) -> float | None:
+        if self.duration_s is None or self.time_s <= 0:
+            return None
+        return self.duration_s / self.time_s
+
+    def summary(self) -> str:
+        loops = self.loop_closures
+        accepted = int(loops.accepted.sum())
+        rtf = self.real_time_factor
+        speed = "" if rtf is None else f", {rtf:.1f}x real time"
+        return (
+            f"{self.map.num_poses} scans, {self.keyframes.size} keyframes, {self.submaps} "
+            f"submaps; loop closures: {accepted} accepted, {loops.pairs.shape[0] - accepted} "
+            f"rejected; {self.time_s:.1f} s ({self.map.num_poses / max(self.time_s, 1e-9):.0f} "
+            f"scans/s{speed})"
+        )
+
+
+def slam(
+    source: Map | str | os.PathLike[str],
+    *,
+    progress: Callable[[int, int], object] | None = None,
+    keyframe_distance: float = 0.2,
+    keyframe_angle_deg: float = 10.0,
+    max_range: float = 20.0,
+    loop_min_score: float = 0.55,
+    dcs: float = 10.0,
+) -> SlamResult:
+    """Runs the front end over ``source`` (a Map whose poses are odometry, or a log's path,
+    read by :func:`hitl_slam.io.maps.load_map`). ``progress(done, total)`` is called every few
+    hundred scans. Matching uses points within ``max_range`` [m]; a scan that moved
+    ``keyframe_distance`` [m] or turned ``keyframe_angle_deg`` since the last keyframe becomes
+    one; loop closures need a correlative score of ``loop_min_score`` and are weighed by dynamic
+    covariance scaling with Phi = ``dcs``.
+
+    Raises:
+        InputError: the log cannot be read, has no scans, or a setting is out of range.
+    """
+    if isinstance(source, Map):
+        raw = source
+    else:
+        from hitl_slam.io.maps import load_map
+
+        raw = load_map(source)
+    n = raw.num_poses
+    total = n
+
+    def report(done: int) -> None:
+        if progress is not None:
+            progress(done, total)
+
+    t0 = time.perf_counter()
+    poses, keyframes, step_info, pairs, z, info, scores, weights, submaps = _core.run_slam(
+        raw.points,
+        raw.offsets,
+        raw.poses,
+        progress=report,
+        keyframe_distance=keyframe_distance,
+        keyframe_angle_deg=keyframe_angle_deg,
+        max_range=max_range,
+        loop_min_score=loop_min_score,
+        dcs=dcs,
+    )
+    elapsed = time.perf_counter() - t0
+    loops = LoopClosures(pairs, z, info, scores, weights)
+    keep = loops.accepted
+    chain = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1).astype(np.int64)
+    edges = np.concatenate([chain, pairs[keep]]).astype(np.int64)
+    measurements = np.concatenate([chain_steps(poses), z[keep]])
+    information = np.concatenate([step_info[1:], info[keep]])
+    if edges.shape[0] == 0:
+        raise InputError(f"{raw.name}: a map needs at least two scans")
+    built = Map(
+        poses=poses,
+        points=raw.points,
+        offsets=raw.offsets,
+        edges=edges,
+        measurements=measurements,
+        information=information,
+        information_source=np.full(edges.shape[0], InformationSource.INPUT, dtype=np.int8),
+        normals=raw.normals,
+        timestamps=raw.timestamps,
+        anchor=0,
+        name=f"{raw.name} (hitl-slam front end)",
+        source=raw.source,
+        metadata=dict(raw.metadata),
+    )
+    duration = None
+    if raw.timestamps is not None and n > 1:
+        duration = float(raw.timestamps[-1] - raw.timestamps[0])
+    return SlamResult(built, keyframes, loops, int(submaps), elapsed, duration)
