@@ -1,5 +1,5 @@
-//! Correlative scan matching by branch and bound (Olson 2009; Hess et al. 2016, §V): the pose in
-//! a window around a guess that maximizes the mean likelihood of the scan's points in a
+//! Correlative scan matching by branch and bound (Olson 2009; Hess et al. 2016, section V;
+//! docs/ALGORITHM.md §F.2): the pose in a window around a guess that maximizes the mean likelihood of the scan's points in a
 //! [`LikelihoodGrid`], searched exactly over a lattice of rotations (step from the scan's
 //! reach and the grid's resolution) and whole-cell translations, with the grid's coarse levels
 //! as upper bounds so that most of the window is never scored at the fine level.

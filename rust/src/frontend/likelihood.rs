@@ -4,7 +4,7 @@
 //! grids holds, at level `l`, the maximum over the `2^l x 2^l` block of fine cells starting at
 //! each cell: an upper bound of the fine score for every translation in that block, which is
 //! what branch and bound needs (Hess et al., "Real-time loop closure in 2D LIDAR SLAM", ICRA
-//! 2016, §V.C).
+//! 2016, section V.C; docs/ALGORITHM.md §F.2).
 
 /// A point of the plane.
 pub type Point = [f64; 2];

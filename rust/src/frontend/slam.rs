@@ -1,5 +1,5 @@
-//! The scan-matching front end: a raw laser log (scans with their odometry) to a pose graph and
-//! a pose for every scan.
+//! The scan-matching front end (docs/ALGORITHM.md §F): a raw laser log (scans with their
+//! odometry) to a pose graph and a pose for every scan.
 //!
 //! - Every scan is matched against the local map (the last keyframes' points) from the pose the
 //!   odometry predicts: correlative search by branch and bound in a small window on a likelihood
