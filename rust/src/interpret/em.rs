@@ -331,18 +331,13 @@ pub fn em_fit_scans(
     search: Option<&SnapParams>,
 ) -> Result<Vec<EmFit>> {
     check_inputs(segments, params)?;
-    if let Some(s) = search {
-        s.validate()?;
-    }
-    // A snapped segment lies within the search band of the drawn one, and its candidates
-    // within the band of it.
-    let reach = params.band + search.map_or(0.0, |s| s.search_band);
-    let (world, rows) = world_points_near(poses, points, offsets, segments, reach)?;
+    let (world, rows) = world_points_near(poses, points, offsets, segments, reach(params, search))?;
     em_fit_near(&world, &rows, segments, params, search)
 }
 
 /// How far from a drawn segment [`em_fit_scans`] needs the map's points: the candidate band,
-/// plus the search band when segments are snapped first.
+/// plus the search band when segments are snapped first (a snapped segment lies within the
+/// search band of the drawn one, and its candidates within the band of it).
 pub fn reach(params: &EmParams, search: Option<&SnapParams>) -> f64 {
     params.band + search.map_or(0.0, |s| s.search_band)
 }

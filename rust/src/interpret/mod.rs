@@ -115,6 +115,19 @@ impl Bounds {
         self.max = [self.max[0].max(p[0]), self.max[1].max(p[1])];
     }
 
+    /// The circle around the box: its centre and half its diagonal.
+    pub fn circle(&self) -> (Point, f64) {
+        let mid = [
+            0.5 * (self.min[0] + self.max[0]),
+            0.5 * (self.min[1] + self.max[1]),
+        ];
+        let half = [
+            0.5 * (self.max[0] - self.min[0]),
+            0.5 * (self.max[1] - self.min[1]),
+        ];
+        (mid, dot(half, half).sqrt())
+    }
+
     pub fn merge(self, other: Bounds) -> Bounds {
         Bounds {
             min: [self.min[0].min(other.min[0]), self.min[1].min(other.min[1])],
@@ -220,38 +233,22 @@ impl ScanBlocks {
         for (i, w) in offsets.windows(2).enumerate() {
             let (first, end) = (w[0] as usize, w[1] as usize);
             scans.push(blocks.len());
-            let mut whole = Bounds::EMPTY;
-            for k in first..end {
-                whole.add([points.flat[2 * k], points.flat[2 * k + 1]]);
-            }
+            let circle = |from: usize, to: usize| {
+                let mut b = Bounds::EMPTY;
+                for k in from..to {
+                    b.add([points.flat[2 * k], points.flat[2 * k + 1]]);
+                }
+                b.circle()
+            };
             circles.push(if first < end {
-                let mid = [
-                    0.5 * (whole.min[0] + whole.max[0]),
-                    0.5 * (whole.min[1] + whole.max[1]),
-                ];
-                let half = [
-                    0.5 * (whole.max[0] - whole.min[0]),
-                    0.5 * (whole.max[1] - whole.min[1]),
-                ];
-                (mid, dot(half, half).sqrt())
+                circle(first, end)
             } else {
                 ([0.0, 0.0], 0.0)
             });
             for start in (first..end).step_by(NEAR_BLOCK) {
                 let len = NEAR_BLOCK.min(end - start);
-                let mut boxed = Bounds::EMPTY;
-                for k in start..start + len {
-                    boxed.add([points.flat[2 * k], points.flat[2 * k + 1]]);
-                }
-                let mid = [
-                    0.5 * (boxed.min[0] + boxed.max[0]),
-                    0.5 * (boxed.min[1] + boxed.max[1]),
-                ];
-                let half = [
-                    0.5 * (boxed.max[0] - boxed.min[0]),
-                    0.5 * (boxed.max[1] - boxed.min[1]),
-                ];
-                blocks.push((i, start, len, mid, dot(half, half).sqrt()));
+                let (mid, radius) = circle(start, start + len);
+                blocks.push((i, start, len, mid, radius));
             }
         }
         scans.push(blocks.len());
@@ -343,16 +340,9 @@ fn world_points_where(
                 }
                 boxed.add([p[0], p[1]]);
             }
-            let mid = [
-                0.5 * (boxed.min[0] + boxed.max[0]),
-                0.5 * (boxed.min[1] + boxed.max[1]),
-            ];
-            let half = [
-                0.5 * (boxed.max[0] - boxed.min[0]),
-                0.5 * (boxed.max[1] - boxed.min[1]),
-            ];
+            let (mid, radius) = boxed.circle();
             let centre = [c * mid[0] - s * mid[1] + x, s * mid[0] + c * mid[1] + y];
-            if !keep(centre, dot(half, half).sqrt()) {
+            if !keep(centre, radius) {
                 continue;
             }
             for (k, p) in block.chunks_exact(2).enumerate() {
