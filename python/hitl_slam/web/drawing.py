@@ -159,12 +159,19 @@ class MapDrawing:
         """For each correction in effect (history index, interpretation), in order, its solved
         lines a and b (rows 2k and 2k + 1 of ``lines``) as ``{index, mode, a, b}``: each
         ``{phi, rho, segment}``, the segment the stretch S_a (S_b) covers on its line."""
+        sets = [rows for _, h in active for rows in (h.s_a, h.s_b)]
+        if not sets:
+            return []
+        # Every S_a and S_b placed at once (the same values as one by one, point by point).
+        world = self._map.observed_points(np.concatenate(sets), poses)
+        ends = np.cumsum([rows.shape[0] for rows in sets])
+        placed = np.split(world, ends[:-1])
         out = []
         for k, (index, h) in enumerate(active):
             sides = {}
-            for side, rows, row in (("a", h.s_a, 2 * k), ("b", h.s_b, 2 * k + 1)):
+            for side, row in (("a", 2 * k), ("b", 2 * k + 1)):
                 phi, rho = float(lines[row, 0]), float(lines[row, 1])
-                world = self._map.observed_points(rows, poses)
-                sides[side] = {"phi": phi, "rho": rho, "segment": line_segment(phi, rho, world)}
+                segment = line_segment(phi, rho, placed[row])
+                sides[side] = {"phi": phi, "rho": rho, "segment": segment}
             out.append({"index": index, "mode": h.mode.value, **sides})
         return out
