@@ -451,6 +451,21 @@ def test_a_payload_with_arrays_is_the_text_json_dumps_writes_of_its_lists(
     assert encode_payload(payload) == json.dumps(lists)
 
 
+@pytest.mark.parametrize(
+    "values",
+    [
+        np.arange(10_000).reshape(-1, 2),  # the digits' table: every number it holds
+        np.arange(10_000)[::-1],
+        np.array([[0, 7], [9_999, 10_000]]),  # one past the table
+        np.arange(-50_000, 2_000_000, 997),
+        np.array([-(10**15) + 1, 10**15 - 1, -1, 0, 1]),  # the edges of exact float digits
+        np.array([[10**15, 3]]),  # beyond them: written through lists
+    ],
+)
+def test_observation_rows_are_written_as_their_lists_dump(values: np.ndarray) -> None:
+    assert encode_payload({"s_a": values}) == json.dumps({"s_a": values.tolist()})
+
+
 def big_applier(*args: Any) -> Any:
     """The fake applier with observation sets of thousands of rows (as a real map has)."""
     result = fake_applier(*args)
