@@ -6,6 +6,8 @@ checksums on their next write."""
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import logging
 import random
 import shutil
@@ -15,10 +17,12 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from hitl_slam.errors import InputError
 from hitl_slam.io.maps import load_map
-from hitl_slam.journal import decode_array, encode_array
+from hitl_slam.journal import decode_array, encode_array, encode_payload
 from hitl_slam.session import EntryStatus, Session
 from test_session import drawing, fake_applier, reseal, same, tiny_map
 
@@ -415,3 +419,88 @@ def test_a_damaged_schema_text_is_a_damaged_file_not_a_decode_error(tmp_path: Pa
     path.write_bytes(data[:at] + b"\x80" + data[at + 1 :])
     with pytest.raises(InputError, match="damaged"):
         Session.open(path, applier=fake_applier)
+
+
+# -- the event text: what json.dumps writes, however it is built --------------------------------
+
+_ints = st.integers(min_value=-(2**63), max_value=2**63 - 1)
+_small = st.integers(min_value=-(10**6), max_value=10**6)
+
+
+@st.composite
+def integer_arrays(draw: st.DrawFn) -> np.ndarray:
+    rows = draw(st.integers(0, 40))
+    shape = draw(st.sampled_from([(rows,), (rows, 1), (rows, 2), (rows, 3), (rows, 0)]))
+    values = draw(st.lists(draw(st.sampled_from([_ints, _small])), min_size=int(np.prod(shape))))
+    array = np.array(values[: int(np.prod(shape))], dtype=np.int64).reshape(shape)
+    dtype = draw(st.sampled_from([np.int64, np.int32, np.uint32, np.int8, np.uint64]))
+    with np.errstate(over="ignore"):
+        return array if dtype is np.int64 else array.astype(dtype)
+
+
+@settings(max_examples=300, deadline=None)
+@given(integer_arrays(), integer_arrays(), st.text(max_size=8), st.floats(allow_nan=True))
+def test_a_payload_with_arrays_is_the_text_json_dumps_writes_of_its_lists(
+    a: np.ndarray, b: np.ndarray, text: str, number: float
+) -> None:
+    """The journal writes an interpretation's observation rows from its arrays: the text is
+    byte for byte json.dumps of the lists, as every earlier version wrote (and reads)."""
+    payload = {"request": 3, "interpretation": {"s_a": a, "n": {"s_b": b}}, "t": [text, number]}
+    lists = {"request": 3, "interpretation": {"s_a": a.tolist(), "n": {"s_b": b.tolist()}}}
+    lists["t"] = [text, number]
+    assert encode_payload(payload) == json.dumps(lists)
+
+
+@pytest.mark.parametrize(
+    "values",
+    [
+        np.arange(10_000).reshape(-1, 2),  # the digits' table: every number it holds
+        np.arange(10_000)[::-1],
+        np.array([[0, 7], [9_999, 10_000]]),  # one past the table
+        np.arange(-50_000, 2_000_000, 997),
+        np.array([-(10**15) + 1, 10**15 - 1, -1, 0, 1]),  # the edges of exact float digits
+        np.array([[10**15, 3]]),  # beyond them: written through lists
+    ],
+)
+def test_observation_rows_are_written_as_their_lists_dump(values: np.ndarray) -> None:
+    assert encode_payload({"s_a": values}) == json.dumps({"s_a": values.tolist()})
+
+
+def big_applier(*args: Any) -> Any:
+    """The fake applier with observation sets of thousands of rows (as a real map has)."""
+    result = fake_applier(*args)
+    rng = np.random.default_rng(len(args[3]))
+    h = dataclasses.replace(
+        result.interpretation,
+        s_a=np.stack([rng.integers(0, 24, 5000), rng.integers(0, 3, 5000)], axis=1),
+        s_b=np.stack([rng.integers(0, 24, 4000), rng.integers(0, 3, 4000)], axis=1),
+    )
+    return dataclasses.replace(result, interpretation=h)
+
+
+def test_a_correction_event_is_written_as_every_earlier_version_wrote_it(tmp_path: Path) -> None:
+    """The correction event's payload is json.dumps of the interpretation's JSON object (lists),
+    so a file of this version reads the same in an earlier reader and the other way round; the
+    reopened session has the very interpretation that was applied."""
+    path = tmp_path / "s.hitl"
+    with Session.new(tiny_map(), path, applier=big_applier) as session:
+        session.apply(drawing(0.6))
+        session.apply(drawing(1.6))
+        applied = session.active
+    connection = sqlite3.connect(path)
+    stored = connection.execute(
+        "SELECT payload FROM events WHERE kind = 'correction' ORDER BY seq"
+    ).fetchall()
+    connection.close()
+    assert len(stored) == 2
+    for (text,), h in zip(stored, applied, strict=True):
+        data = json.loads(text)
+        assert json.dumps(data) == text
+        assert data["interpretation"] == h.to_json()
+    with Session.open(path, applier=big_applier) as reopened:
+        for h, again in zip(applied, reopened.active, strict=True):
+            for name in ("s_a", "s_b", "x_a", "x_b"):
+                live, read = getattr(h, name), getattr(again, name)
+                assert live.dtype == read.dtype == np.int64
+                assert live.shape == read.shape
+                assert np.array_equal(live, read)

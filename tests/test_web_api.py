@@ -839,3 +839,62 @@ def test_bounds_are_exact_without_placing_every_point(room: Scenario) -> None:
         poses = room.map.poses + scale * rng.normal(size=room.map.poses.shape)
         xy = np.concatenate([room.map.world_points(poses), poses[:, :2]])
         assert drawing.bounds(poses) == (*xy.min(axis=0), *xy.max(axis=0))
+
+
+def test_bounds_stay_exact_for_degenerate_scans_and_any_move() -> None:
+    """The bounds place only each scan's hull vertices, then whole only the scans near an
+    extreme: scans of no, one, two, repeated or collinear points, a wall of points a hair off
+    its line, and poses moved far beyond where the map was (as a correction may move them) give
+    exactly the extremes of every point, bit for bit, before and after the move."""
+    from hitl_slam.web.drawing import MapDrawing
+
+    rng = np.random.default_rng(7)
+    wall = np.stack([np.linspace(-3.0, 3.0, 61), 2.0 + 1e-12 * rng.normal(size=61)], axis=1)
+    scans = [
+        np.empty((0, 2)),
+        np.array([[1.0, 2.0]]),
+        np.array([[1.0, 2.0], [-3.0, 0.5]]),
+        np.array([[1.5, 1.5]] * 5),
+        np.stack([np.linspace(0.0, 4.0, 9), np.linspace(1.0, 3.0, 9)], axis=1),
+        wall,
+        *(rng.normal(scale=5.0, size=(int(rng.integers(3, 40)), 2)) for _ in range(40)),
+    ]
+    n = len(scans)
+    poses = np.stack([rng.normal(size=n), rng.normal(size=n), rng.uniform(-4, 4, n)], axis=1)
+    map = Map.from_poses_and_scans(poses, scans, name="odd")
+    drawing = MapDrawing(map)
+    for shift in (0.0, 1.0, 1e3, 1e6):
+        for _ in range(20):
+            moved = poses.copy()
+            moved[:, :2] += shift * rng.normal(size=(n, 2))
+            moved[:, 2] = rng.uniform(-4, 4, n)
+            xy = np.concatenate([map.world_points(moved), moved[:, :2]])
+            assert drawing.bounds(moved) == (*xy.min(axis=0), *xy.max(axis=0))
+
+
+def test_bounds_are_exact_where_a_wall_is_the_extreme() -> None:
+    """A straight wall (a scan's hull edge) turned square to an axis: in exact arithmetic its
+    points tie, as placed they differ in the last bits, and a point inside the edge (no hull
+    vertex) can be the extreme; the bounds are still those of every point, bit for bit."""
+    from hitl_slam.web.drawing import MapDrawing
+
+    rng = np.random.default_rng(11)
+    t = np.linspace(-4.0, 4.0, 200)
+    inner = 0
+    for beta in rng.uniform(-np.pi, np.pi, 8):
+        wall = np.stack([3.0 + t * np.cos(beta), -1.0 + t * np.sin(beta)], axis=1)
+        behind = [3.0 + 2.0 * np.sin(beta), -1.0 - 2.0 * np.cos(beta)]
+        map = Map.from_poses_and_scans(np.zeros((1, 3)), [np.vstack([wall, [behind]])])
+        drawing = MapDrawing(map)
+        for trial in range(24):
+            # The wall's outward normal along +x, +y, -x or -y in the world.
+            theta = np.pi / 2 * (trial % 4) - beta - np.pi / 2 + rng.normal(scale=1e-13)
+            pose = np.array([[*rng.normal(scale=0.01, size=2), theta]])
+            world = map.world_points(pose)
+            xy = np.concatenate([world, pose[:, :2]])
+            expected = (*xy.min(axis=0), *xy.max(axis=0))
+            assert drawing.bounds(pose) == expected
+            axis, value = trial % 2, expected[(trial + 2) % 4]
+            at = np.flatnonzero(world[:, axis] == value)
+            inner += int(np.all((at > 0) & (at < t.size - 1)))
+    assert inner > 0  # the case this test is about did occur

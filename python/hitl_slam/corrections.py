@@ -111,15 +111,23 @@ class Interpretation:
     log_likelihood: tuple[float, float] = (0.0, 0.0)
     notes: tuple[str, ...] = ()
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self, *, arrays: bool = False) -> dict[str, Any]:
+        """The JSON object (plain lists and numbers). ``arrays``: S_a, S_b, X_a and X_b as int64
+        arrays (copies) instead of lists, for :meth:`hitl_slam.journal.Journal.append`, which
+        writes them as the very same JSON text without building a list per row; ``from_json``
+        reads either form."""
+
+        def rows(values: NDArray[np.int64]) -> Any:
+            return np.array(values, dtype=np.int64) if arrays else values.tolist()
+
         return {
             "mode": self.mode.value,
             "line_a": [list(self.line_a[0]), list(self.line_a[1])],
             "line_b": [list(self.line_b[0]), list(self.line_b[1])],
-            "s_a": self.s_a.tolist(),
-            "s_b": self.s_b.tolist(),
-            "x_a": self.x_a.tolist(),
-            "x_b": self.x_b.tolist(),
+            "s_a": rows(self.s_a),
+            "s_b": rows(self.s_b),
+            "x_a": rows(self.x_a),
+            "x_b": rows(self.x_b),
             "swapped": self.swapped,
             "iterations": list(self.iterations),
             "log_likelihood": list(self.log_likelihood),

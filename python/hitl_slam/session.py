@@ -697,7 +697,7 @@ class Session:
                 outcome = apply(self._map, before, drawn, active, self._config)
                 after = _checked_poses(outcome.poses, before.shape)
                 lines = _checked_lines(outcome, 2 * (len(active) + 1))
-                interpretation = outcome.interpretation.to_json()
+                interpretation = outcome.interpretation.to_json(arrays=True)
                 stats = _stats(before, after, outcome)
             except CorrectionRejected as exc:
                 self._record(

@@ -15,6 +15,7 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
+from starlette.concurrency import run_in_threadpool
 from starlette.staticfiles import StaticFiles
 from starlette.types import Receive, Scope, Send
 
@@ -175,34 +176,39 @@ def create_app(
     def points() -> Response:
         return binary(*host.points())
 
+    # The arrays are ready-made bytes (the snapshot's, read under a lock held only briefly): they
+    # are answered on the event loop, without a trip through the threadpool.
     @app.get("/api/map/scans", response_class=Response)
-    def scans() -> Response:
+    async def scans() -> Response:
         # Robot-frame points: they never change, so the page fetches them once.
         return binary(None, host.scans())
 
     @app.get("/api/map/poses", response_class=Response)
-    def poses() -> Response:
+    async def poses() -> Response:
         return binary(*host.poses())
 
     @app.get("/api/map/offsets", response_class=Response)
-    def offsets() -> Response:
+    async def offsets() -> Response:
         return binary(host.version, host.offsets())
 
+    # A change or an interpretation runs in the threadpool; its answer is checked against the
+    # response model back on the event loop (a plain `def` route would take a second trip through
+    # the threadpool for that, each a wait for a thread to be scheduled on a busy machine).
     @app.post("/api/interpret", response_model=schemas.Preview)
-    def interpret(drawn: schemas.Drawn) -> dict[str, Any]:
-        return host.interpret(drawn.to_correction())
+    async def interpret(drawn: schemas.Drawn) -> dict[str, Any]:
+        return await run_in_threadpool(host.interpret, drawn.to_correction())
 
     @app.post("/api/corrections", response_model=schemas.Applied)
-    def corrections(drawn: schemas.Drawn) -> dict[str, Any]:
-        return host.apply(drawn.to_correction())
+    async def corrections(drawn: schemas.Drawn) -> dict[str, Any]:
+        return await run_in_threadpool(host.apply, drawn.to_correction())
 
     @app.post("/api/undo", response_model=schemas.State)
-    def undo() -> dict[str, Any]:
-        return host.undo()
+    async def undo() -> dict[str, Any]:
+        return await run_in_threadpool(host.undo)
 
     @app.post("/api/redo", response_model=schemas.State)
-    def redo() -> dict[str, Any]:
-        return host.redo()
+    async def redo() -> dict[str, Any]:
+        return await run_in_threadpool(host.redo)
 
     @app.get("/api/relations", response_model=list[schemas.Relation])
     def relations() -> list[dict[str, Any]]:
@@ -217,8 +223,8 @@ def create_app(
         return {"files": host.export(request.path)}
 
     @app.post("/api/journal/step", response_model=schemas.Applied)
-    def journal_step() -> dict[str, Any]:
-        return host.journal_step()
+    async def journal_step() -> dict[str, Any]:
+        return await run_in_threadpool(host.journal_step)
 
     app.mount("/static", _Static(static), name="static")
 
