@@ -90,21 +90,30 @@ def _header(version: int, ns: int, frame: str) -> Any:
 def _quaternion(t: Transform) -> tuple[float, float, float, float]:
     if t.quaternion is not None:
         return t.quaternion
-    return (0.0, 0.0, math.sin(t.pose[2] / 2), math.cos(t.pose[2] / 2))
+    with np.errstate(invalid="ignore"):  # a hostile yaw (inf) gives a NaN quaternion
+        half = np.float64(t.pose[2]) / 2
+        return (0.0, 0.0, float(np.sin(half)), float(np.cos(half)))
+
+
+def _float32(value: float) -> float:
+    with np.errstate(over="ignore"):
+        return float(np.float32(value))
 
 
 def _scan_message(version: int, scan: Scan) -> Any:
     store = _STORES[version]
     n = len(scan.ranges)
+    with np.errstate(over="ignore", invalid="ignore"):  # hostile values: inf as float32 has it
+        angle_max = _float32(scan.angle_min + max(n - 1, 0) * scan.angle_increment)
     return store.types[LASER_SCAN](
         header=_header(version, scan.stamp, scan.frame),
-        angle_min=scan.angle_min,
-        angle_max=scan.angle_min + (n - 1) * scan.angle_increment,
-        angle_increment=scan.angle_increment,
+        angle_min=_float32(scan.angle_min),
+        angle_max=angle_max,
+        angle_increment=_float32(scan.angle_increment),
         time_increment=0.0,
         scan_time=0.0,
-        range_min=scan.range_min,
-        range_max=scan.range_max,
+        range_min=_float32(scan.range_min),
+        range_max=_float32(scan.range_max),
         ranges=np.asarray(scan.ranges, dtype=np.float32),
         intensities=np.asarray(scan.intensities, dtype=np.float32),
     )

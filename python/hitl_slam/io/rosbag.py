@@ -210,11 +210,14 @@ def _check_options(name: str, options: BagOptions, max_range: float | None) -> N
     if max_range is not None and not (
         isinstance(max_range, int | float) and math.isfinite(max_range) and max_range > 0
     ):
-        raise InputError(f"max_range must be a finite number > 0 (metres), got {max_range!r}")
+        raise InputError(
+            f"{name}: max_range must be a finite number > 0 (metres), got {max_range!r}; give "
+            "the laser's maximum range"
+        )
     if max_range is not None and max_range > MAX_COORDINATE:
         raise InputError(
-            f"max_range {max_range!r} is beyond {sci(MAX_COORDINATE)} m, larger than any laser "
-            "reaches; give the laser's maximum range in metres"
+            f"{name}: max_range {max_range!r} is beyond {sci(MAX_COORDINATE)} m, larger than "
+            "any laser reaches; give the laser's maximum range in metres"
         )
     for label, frame in (("odom_frame", options.odom_frame), ("base_frame", options.base_frame)):
         if not _frame_name(frame):
