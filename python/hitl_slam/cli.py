@@ -126,6 +126,7 @@ _METRICS_EPILOG = """\
 examples:
   hitl-slam metrics fixed.covars
   hitl-slam metrics fr079.clf.bz2 --relations fr079.relations
+  hitl-slam metrics restamped.bag --relations fr079.relations --tolerance 0.05
   hitl-slam metrics run.hitl --heat-map run-heat.png
 
 MAP is a .covars file, a CARMEN log (.clf/.log, optionally .gz/.bz2), a ROS bag (.bag, .db3,
@@ -133,8 +134,11 @@ MAP is a .covars file, a CARMEN log (.clf/.log, optionally .gz/.bz2), a ROS bag 
 Biswas 2018): summed over ordered pairs of scans, the area one scan sees as free space and the
 other as occupied, on a grid of --resolution cells, in m^2 (lower is better; a perfect map scores
 near zero). With --relations (Kuemmerle et al. 2009, "t1 t2 dx dy dz roll pitch yaw" lines
-matched to the scans by timestamp): mean +- standard deviation of |t_est - t_true| (m) and
-|yaw_est - yaw_true| (deg) of the relative poses.
+matched to the nearest scans by timestamp): mean +- standard deviation of |t_est - t_true| (m)
+and |yaw_est - yaw_true| (deg) of the relative poses. A relation with a timestamp farther than
+--tolerance (default 0.001 s) from every scan is skipped: the line says how many were matched and
+how many skipped, so a cut log scores on what it kept, and a larger --tolerance scores a log whose
+stamps moved (e.g. re-stamped by 0.02 s: --tolerance 0.05, below half the scan period).
 --heat-map draws the per-cell count of contradicting scan pairs over the map as a PNG.
 """
 
@@ -609,11 +613,20 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
                 f"--resolution must be a positive number of metres, got {args.resolution}"
             )
         config = DEFAULT.replace(grid_resolution=args.resolution)
+    if args.tolerance is not None and args.relations is None:
+        raise InputError("--tolerance goes with --relations; add the relations file, or drop it")
+    tolerance = 1e-3 if args.tolerance is None else args.tolerance
+    if not (math.isfinite(tolerance) and tolerance >= 0):
+        raise InputError(f"--tolerance must be a number of seconds >= 0, got {args.tolerance}")
     # Read before the (slower) map, so a bad relations file fails fast.
     relations = None if args.relations is None else read_relations(args.relations)
     the_map = _load_map(args, args.map)
     # Matched before the metric runs, so relations that do not fit the map fail before any output.
-    err = None if relations is None else relations_error(the_map, None, relations)
+    err = (
+        None
+        if relations is None
+        else relations_error(the_map, None, relations, tolerance=tolerance)
+    )
     t0 = time.perf_counter()
     result = _with_progress(
         "inconsistency", args.quiet, lambda: inconsistency(the_map, None, config)
@@ -627,7 +640,8 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
     )
     if err is not None:
         print(
-            f"relations: {err.count}, translation {err.translation_mean:.4f} +- "
+            f"relations: {err.matched} matched, {err.skipped} skipped (no scan within "
+            f"{err.tolerance:g} s), translation {err.translation_mean:.4f} +- "
             f"{err.translation_std:.4f} m (max {err.translation_max:.4f}), rotation "
             f"{err.rotation_mean_deg:.3f} +- {err.rotation_std_deg:.3f} deg "
             f"(max {err.rotation_max_deg:.3f})"
@@ -1016,6 +1030,13 @@ def build_parser() -> argparse.ArgumentParser:
     _add_bag_options(metrics)
     metrics.add_argument(
         "--relations", metavar="R", help="ground-truth relations (.relations) for the map's log"
+    )
+    metrics.add_argument(
+        "--tolerance",
+        type=float,
+        metavar="SECONDS",
+        help="match each relation's timestamps to the nearest scan within this many seconds "
+        "(default 0.001); relations farther from every scan are skipped and counted",
     )
     metrics.add_argument("--heat-map", metavar="OUT.png", help="write the per-cell heat map")
     metrics.add_argument(
