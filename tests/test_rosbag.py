@@ -722,3 +722,20 @@ def test_a_missing_ros_extra_is_one_line(tmp_path: Path) -> None:
         "pip install 'hitl-slam[ros]'\n"
     )
     assert result.stdout == ""
+
+
+def test_a_signalling_nan_range_is_no_point_and_no_warning(tmp_path: Path) -> None:
+    import warnings
+
+    path = write_bag(
+        simple_bag(2, np.array([1.0, 2.0, 3.0]), frame="base_link"), tmp_path / "s", "ros1"
+    )
+    data = bytearray(path.read_bytes())
+    three = np.float32(3.0).tobytes()
+    at = data.index(three)  # the first scan's third range
+    data[at : at + 4] = b"\x01\x00\x80\x7f"  # float32 signalling NaN (found by make fuzz)
+    path.write_bytes(bytes(data))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        m = read_rosbag(path)
+    np.testing.assert_array_equal(m.offsets, [0, 2, 5])

@@ -372,8 +372,9 @@ def _read_contents(name: str, storage: str, options: BagOptions) -> _Contents:
 
 
 def _scan_of(message: Any, bag_time: int) -> _Scan:
-    ranges = np.asarray(message.ranges, dtype=np.float64).reshape(-1)
-    intensities = np.asarray(message.intensities, dtype=np.float64).reshape(-1)
+    with np.errstate(invalid="ignore"):  # a signalling NaN sets "invalid" when widened
+        ranges = np.asarray(message.ranges, dtype=np.float64).reshape(-1)
+        intensities = np.asarray(message.intensities, dtype=np.float64).reshape(-1)
     return _Scan(
         stamp=_stamp(message.header.stamp, bag_time),
         frame=_frame_name(str(message.header.frame_id)),
