@@ -561,7 +561,7 @@ def test_bad_bags_are_input_errors_naming_the_file(tmp_path: Path, kind: str) ->
     path = bag_at("wrongtype", odom)
     message = error_of(path, BagOptions(scan_topic="/odom"))
     assert "topic /odom is nav_msgs/msg/Odometry, not sensor_msgs/LaserScan" in message
-    assert "LaserScan topics: /scan" in message
+    assert "LaserScan topics as --scan-topic: /scan" in message
     assert "no topic '/front'" in error_of(path, BagOptions(scan_topic="/front"))
     assert "is sensor_msgs/msg/LaserScan, not nav_msgs/Odometry" in error_of(
         path, BagOptions(odom_topic="/scan")
@@ -654,6 +654,8 @@ def test_options_are_checked(tmp_path: Path) -> None:
     path = write_bag(simple_bag(3), tmp_path / "ok", "ros1")
     assert "give two frames" in error_of(path, BagOptions(odom_frame="base_link"))
     assert "base_frame is empty" in error_of(path, BagOptions(base_frame="/"))
+    for frame in ("odom", "/base_link"):
+        assert "give the SLAM's map frame" in error_of(path, BagOptions(map_frame=frame))
     with pytest.raises(InputError, match="max_range must be a finite number"):
         read_rosbag(path, max_range=-1.0)
 

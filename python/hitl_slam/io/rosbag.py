@@ -10,7 +10,7 @@ import dataclasses
 import logging
 import math
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -227,6 +227,12 @@ def _check_options(name: str, options: BagOptions, max_range: float | None) -> N
             f"{name}: odom_frame and base_frame are both {options.odom_frame!r}; the odometry "
             "is the pose of the robot's frame in the odometry frame: give two frames"
         )
+    map_frame = _frame_name(options.map_frame or "")
+    if map_frame in (_frame_name(options.odom_frame), _frame_name(options.base_frame)):
+        raise InputError(
+            f"{name}: map_frame {options.map_frame!r} is also the odometry's or the robot's "
+            "frame; give the SLAM's map frame, or '' to load the odometry"
+        )
 
 
 def _check_form(name: str) -> str:
@@ -262,8 +268,8 @@ def _check_form(name: str) -> str:
     return {".bag": "bag", ".db3": "sqlite3", ".mcap": "mcap"}[extension]
 
 
-def _topic_list(topics: dict[str, str], wanted: Sequence[str] | None = None) -> str:
-    shown = [f"{t} ({k})" for t, k in sorted(topics.items()) if wanted is None or k in wanted]
+def _topic_list(topics: dict[str, str]) -> str:
+    shown = [f"{t} ({k})" for t, k in sorted(topics.items())]
     if len(shown) > 12:
         shown = [*shown[:12], f"... {len(shown) - 12} more"]
     return ", ".join(shown) if shown else "none"
@@ -279,8 +285,8 @@ def _pick_scan_topic(name: str, topics: dict[str, str], wanted: str | None) -> s
             )
         if topics[wanted] != _LASER_SCAN:
             raise InputError(
-                f"{name}: topic {wanted} is {topics[wanted]}, not sensor_msgs/LaserScan; its "
-                f"LaserScan topics: {', '.join(scans) or 'none'}"
+                f"{name}: topic {wanted} is {topics[wanted]}, not sensor_msgs/LaserScan; pass "
+                f"one of its LaserScan topics as --scan-topic: {', '.join(scans) or 'none'}"
             )
         return wanted
     if not scans:
@@ -308,8 +314,8 @@ def _pick_odom_topic(name: str, topics: dict[str, str], wanted: str | None) -> s
         )
     if topics[wanted] != _ODOMETRY:
         raise InputError(
-            f"{name}: topic {wanted} is {topics[wanted]}, not nav_msgs/Odometry; its Odometry "
-            f"topics: {', '.join(odometry) or 'none'}"
+            f"{name}: topic {wanted} is {topics[wanted]}, not nav_msgs/Odometry; pass one of "
+            f"its Odometry topics as --odom-topic: {', '.join(odometry) or 'none'}"
         )
     return wanted
 
@@ -694,7 +700,10 @@ def _build_map(
             "from one clock (use_sim_time)"
         )
     poses = (odometry if slam is None else slam)[kept]
-    if not np.all(np.abs(poses[:, :2]) <= MAX_COORDINATE):
+    if not (
+        np.all(np.abs(poses[:, :2]) <= MAX_COORDINATE)
+        and np.all(np.abs(odometry[kept, :2]) <= MAX_COORDINATE)
+    ):
         raise InputError(
             f"{name}: a robot pose beyond {sci(MAX_COORDINATE)} m from the origin; the "
             "transforms are damaged: re-record the bag"
