@@ -167,7 +167,8 @@ class RelationsError:
         rows: ``(K,)`` int64 index of each scored relation in the relations given (None: all,
             in order).
         skipped: how many relations were skipped: a timestamp with no scan within
-            ``tolerance`` [s] (a cut log, dropped scans).
+            ``tolerance`` (a cut log, dropped scans).
+        tolerance: [s] how far from a relation's timestamp its scan could be.
     """
 
     translation: FloatArray
