@@ -85,8 +85,10 @@ clean:
 .PHONY: fuzz
 
 # Property-based fuzzing of every reader (issue 13): FUZZ_EXAMPLES cases per reader (corrections
-# JSONL, .hitl, .covars, g2o, TORO, CARMEN, relations); `make test` runs a few of each. Per-reader
-# tallies are rewritten every 500 cases in $(FUZZ_STATS). Hours on 2 cores at the default.
+# JSONL, .hitl, .covars, g2o, TORO, CARMEN, relations, ROS bags: mutated bytes, hostile values
+# through rosbags' writers, a bag directory's metadata.yaml); `make test` runs a few of each.
+# Per-reader tallies are rewritten every 500 cases in $(FUZZ_STATS). Hours on 2 cores at the
+# default.
 FUZZ_EXAMPLES ?= 100000
 FUZZ_STATS ?= build/fuzz-stats.json
 

@@ -280,6 +280,22 @@ def check_reader(
     """
     path.write_bytes(data)
     shown = repr(data[:300]) + ("..." if len(data) > 300 else "")
+    line_count = data.count(b"\n") + data.count(b"\r") + 1 if lines else None
+    return check_path(read, path, shown, line_count=line_count, validate=validate)
+
+
+def check_path(
+    read: Callable[[Path], T],
+    path: Path,
+    shown: str,
+    *,
+    line_count: int | None = None,
+    validate: Callable[[T], None] | None = None,
+) -> T | None:
+    """Read ``path`` as it is (a file or a directory; ``shown`` describes it in a failure) and
+    hold the reader to the invariant; ``line_count``: the lines of a text file (+1 for a missing
+    last one), which an error naming a line must stay within.
+    """
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
@@ -293,9 +309,10 @@ def check_reader(
             rest = message[len(str(path)) :]
             assert rest.startswith((": ", ":")), f"error does not start with the file: {message!r}"
             located = _LOCATED.match(rest)
-            if located and lines:
-                count = data.count(b"\n") + data.count(b"\r") + 1  # +1: a missing line
-                assert 1 <= int(located.group(1)) <= count + 1, f"line out of range: {message!r}"
+            if located and line_count is not None:
+                assert 1 <= int(located.group(1)) <= line_count + 1, (
+                    f"line out of range: {message!r}"
+                )
             assert "Traceback" not in message
             result = None
             _count("input_error")

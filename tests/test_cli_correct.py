@@ -211,4 +211,4 @@ def test_bad_input_as_a_real_process(map_file: Path, tmp_path: Path) -> None:
         check=False,
     )
     assert unknown.returncode == 2
-    assert "supported: .covars, .clf, .log, .hitl" in unknown.stderr
+    assert "supported: .covars, .clf, .log, .bag, .db3, .mcap, .hitl" in unknown.stderr

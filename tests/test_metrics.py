@@ -316,6 +316,97 @@ def test_relations_error_hand_computed(tmp_path: Path) -> None:
     np.testing.assert_allclose(same.translation, err.translation, atol=1e-12)
 
 
+def timed_walk(rng: np.random.Generator, n: int) -> tuple[Map, FloatArray, Path]:
+    """A map of ``n`` scans 0.2 s apart (jittered) whose poses are a noisy copy of a random walk,
+    and relations between random pairs of scans made from the walk (the truth)."""
+    truth = np.cumsum(rng.normal(0, [0.3, 0.3, 0.2], (n, 3)), axis=0)
+    truth[:, 2] = np.arctan2(np.sin(truth[:, 2]), np.cos(truth[:, 2]))
+    poses = truth + rng.normal(0, [0.02, 0.02, 0.01], (n, 3))
+    stamps = 1000.0 + 0.2 * np.arange(n) + rng.uniform(-0.01, 0.01, n)
+    scans = [np.array([[1.0, 0.0]])] * n
+    return Map.from_poses_and_scans(poses, scans, timestamps=stamps), truth, stamps
+
+
+def relations_of(
+    path: Path, truth: FloatArray, stamps: FloatArray, pairs: NDArray[np.int64]
+) -> Path:
+    lines = []
+    for i, j in pairs.tolist():
+        a, b = truth[i].tolist(), truth[j].tolist()
+        ti, tj = float(stamps[i]), float(stamps[j])
+        c, s = math.cos(a[2]), math.sin(a[2])
+        dx, dy = b[0] - a[0], b[1] - a[1]
+        yaw = math.remainder(b[2] - a[2], 2 * math.pi)
+        lines.append(f"{ti!r} {tj!r} {c * dx + s * dy!r} {-s * dx + c * dy!r} 0 0 0 {yaw!r}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_relations_of_a_cut_log_are_matched_or_skipped(tmp_path: Path, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n = 200
+    full, truth, stamps = timed_walk(rng, n)
+    pairs = rng.integers(0, n, (150, 2))
+    relations = read_relations(relations_of(tmp_path / "r.relations", truth, stamps, pairs))
+    whole = relations_error(full, None, relations)
+    assert (whole.matched, whole.skipped) == (150, 0)
+    np.testing.assert_array_equal(whole.pairs, pairs)
+    # The log cut: its first and last 20% of scans dropped.
+    keep = np.arange(n // 5, n - n // 5)
+    cut = Map.from_poses_and_scans(
+        full.poses[keep], [np.array([[1.0, 0.0]])] * len(keep), timestamps=stamps[keep]
+    )
+    inside = np.all((pairs >= keep[0]) & (pairs <= keep[-1]), axis=1)
+    assert 0 < inside.sum() < 150
+    err = relations_error(cut, None, relations)
+    assert (err.matched, err.skipped) == (inside.sum(), 150 - inside.sum())
+    assert err.rows is not None
+    np.testing.assert_array_equal(err.rows, np.flatnonzero(inside))
+    np.testing.assert_array_equal(keep[err.pairs], pairs[inside])
+    np.testing.assert_allclose(err.translation, whole.translation[inside], rtol=1e-12)
+    np.testing.assert_allclose(err.rotation_deg, whole.rotation_deg[inside], rtol=1e-12)
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_a_restamped_log_scores_with_a_larger_tolerance(tmp_path: Path, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    full, truth, stamps = timed_walk(rng, 120)
+    pairs = rng.integers(0, 120, (80, 2))
+    relations = read_relations(relations_of(tmp_path / "r.relations", truth, stamps, pairs))
+    whole = relations_error(full, None, relations)
+    assert full.timestamps is not None
+    late = Map.from_poses_and_scans(
+        full.poses, [np.array([[1.0, 0.0]])] * 120, timestamps=full.timestamps + 0.02
+    )
+    # The default tolerance (1 ms) stays: nothing of a log 20 ms late matches, and it says so.
+    with pytest.raises(InputError, match=r"no scan within 0\.001 s of t1 .* larger tolerance"):
+        relations_error(late, None, relations)
+    err = relations_error(late, None, relations, tolerance=0.05)
+    assert (err.matched, err.skipped, err.tolerance) == (80, 0, 0.05)
+    np.testing.assert_array_equal(err.pairs, whole.pairs)
+    np.testing.assert_array_equal(err.translation, whole.translation)
+    # Nearest, not first within the tolerance: 0.15 s reaches two scans, the right one is nearer.
+    wide = relations_error(late, None, relations, tolerance=0.15)
+    np.testing.assert_array_equal(wide.pairs, whole.pairs)
+
+
+def test_the_default_tolerance_is_one_millisecond(tmp_path: Path) -> None:
+    import inspect
+
+    from hitl_slam.io.relations import match_relations, nearest_scans
+
+    for function in (relations_error, match_relations, nearest_scans):
+        assert inspect.signature(function).parameters["tolerance"].default == 1e-3
+    m = relations_map()
+    path = tmp_path / "r.relations"
+    path.write_text("10.0009 11.0 1.0 0.0 0 0 0 0\n10.0011 12.0 1.0 0.0 0 0 0 0\n")
+    err = relations_error(m, None, read_relations(path))
+    assert (err.matched, err.skipped) == (1, 1)
+    with pytest.raises(InputError, match=r"relation 2: no scan within 0\.001 s"):
+        match_relations(read_relations(path), m.timestamps)
+
+
 def test_relations_need_timestamps(tmp_path: Path) -> None:
     path = tmp_path / "r.relations"
     path.write_text("10.0 11.0 1.0 0.0 0 0 0 0\n")
@@ -449,7 +540,10 @@ def test_cli_metrics(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None
     assert out[0] == f"{log}: 3 poses, 540 points"
     assert out[1].startswith("inconsistency: ")
     assert "cells of 0.05 m" in out[1]
-    assert out[2].startswith("relations: 2, translation 0.0500 +- 0.0500 m (max 0.1000), rotation")
+    assert out[2].startswith(
+        "relations: 2 matched, 0 skipped (no scan within 0.001 s), translation 0.0500 +- 0.0500 m "
+        "(max 0.1000), rotation"
+    )
     assert out[3] == f"wrote {heat}"
     assert heat.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -511,3 +605,83 @@ def test_matplotlib_is_imported_only_for_the_heat_map(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert done.returncode == 0, done.stderr
     assert "inconsistency:" in done.stdout
+
+
+LASER = Path(__file__).resolve().parents[1].parent / "shared" / "datasets" / "laser"
+
+
+@pytest.mark.skipif(not LASER.is_dir(), reason=f"public laser datasets not found at {LASER}")
+def test_cli_metrics_scores_a_cut_and_a_restamped_freiburg_log(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Freiburg 079 (Kuemmerle et al. 2009, via Radish; CC-BY) with its relations: cut to its
+    middle 60%, and re-stamped 20 ms late."""
+    import bz2
+
+    from hitl_slam.io.carmen import read_carmen
+
+    with bz2.open(LASER / "fr079.clf.bz2", "rt") as f:
+        lines = f.read().splitlines(keepends=True)
+    lasers = [k for k, line in enumerate(lines) if line.startswith("FLASER ")]
+    first, last = lasers[len(lasers) // 5], lasers[len(lasers) - len(lasers) // 5 - 1]
+    cut = tmp_path / "cut.clf"
+    cut.write_text(
+        "".join(line for k, line in enumerate(lines) if k < lasers[0] or first <= k <= last)
+    )
+    late = tmp_path / "late.clf"
+    shifted = []
+    for line in lines:
+        tokens = line.split(" ")
+        if tokens[0] == "FLASER":
+            n = int(tokens[1])
+            tokens[8 + n] = repr(float(tokens[8 + n]) + 0.02)
+        shifted.append(" ".join(tokens))
+    late.write_text("".join(shifted))
+    relations_path = LASER / "fr079.relations"
+    relations = read_relations(relations_path)
+    whole = relations_error(read_carmen(LASER / "fr079.clf.bz2"), None, relations)
+    assert (whole.matched, whole.skipped) == (len(relations), 0)
+
+    def score(log: Path, *extra: str) -> tuple[int, str]:
+        code = main(["metrics", str(log), "--relations", str(relations_path), "-q", *extra])
+        captured = capsys.readouterr()
+        return code, (captured.out.splitlines() or [captured.err])[-1]
+
+    # Cut: the relations with both scans kept are scored as on the whole log, the rest skipped.
+    stamps = read_carmen(cut).timestamps
+    assert stamps is not None
+    inside = (np.minimum(relations.t1, relations.t2) >= stamps.min() - 1e-3) & (
+        np.maximum(relations.t1, relations.t2) <= stamps.max() + 1e-3
+    )
+    assert 0.3 < inside.mean() < 0.9
+    code, line = score(cut, "--resolution", "0.5")
+    assert code == 0
+    mean = np.mean(whole.translation[inside])
+    assert line.startswith(
+        f"relations: {inside.sum()} matched, {len(relations) - inside.sum()} skipped (no scan "
+        f"within 0.001 s), translation {mean:.4f} +- "
+    ), line
+    # Re-stamped 20 ms late: refused at the default tolerance, scored as the original with 50 ms.
+    code, line = score(late, "--resolution", "0.5")
+    assert code == 2
+    assert "no scan within 0.001 s" in line
+    assert "--tolerance" in line
+    code, line = score(late, "--resolution", "0.5", "--tolerance", "0.05")
+    assert code == 0
+    assert line.startswith(
+        f"relations: {len(relations)} matched, 0 skipped (no scan within 0.05 s), translation "
+        f"{whole.translation_mean:.4f} +- {whole.translation_std:.4f} m"
+    ), line
+
+
+def test_cli_metrics_tolerance_goes_with_relations(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    log = tmp_path / "box.log"
+    write_carmen(log)
+    assert main(["metrics", str(log), "--tolerance", "0.01"]) == 2
+    assert "--tolerance goes with --relations" in capsys.readouterr().err
+    rel = tmp_path / "box.relations"
+    rel.write_text("100.0 101.0 1.1 0.0 0 0 0 0\n")
+    assert main(["metrics", str(log), "--relations", str(rel), "--tolerance", "-1"]) == 2
+    assert "--tolerance must be a number of seconds >= 0" in capsys.readouterr().err

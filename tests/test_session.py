@@ -772,7 +772,7 @@ def test_load_map_reads_a_sessions_current_map(session_file: tuple[Session, Path
 @pytest.mark.parametrize(
     ("name", "message"),
     [
-        ("map.xyz", "supported: .covars, .clf, .log, .hitl"),
+        ("map.xyz", "supported: .covars, .clf, .log, .bag, .db3, .mcap, .hitl"),
         ("map", "no extension"),
         ("graph.g2o", "hitl-slam solve"),
         ("map.hitl.gz", "supported"),
@@ -811,7 +811,9 @@ def fakes(monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, bytes]]:
     monkeypatch.setitem(sys.modules, "hitl_slam.io.export", module)
     real_load = hitl_slam.io.maps.load_map
 
-    def load(path: Any, config: Config = DEFAULT, *, max_range: float | None = None) -> Map:
+    def load(
+        path: Any, config: Config = DEFAULT, *, max_range: float | None = None, bag: Any = None
+    ) -> Map:
         return real_load(path) if str(path).endswith(".hitl") else tiny_map()
 
     monkeypatch.setattr(hitl_slam.io.maps, "load_map", load)

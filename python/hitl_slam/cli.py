@@ -26,6 +26,7 @@ from hitl_slam.errors import HitlSlamError, InputError, SolverError
 from hitl_slam.extras import require
 
 if TYPE_CHECKING:
+    from hitl_slam.io.rosbag import BagOptions
     from hitl_slam.map import Map
     from hitl_slam.metrics import Inconsistency
     from hitl_slam.session import Session
@@ -90,8 +91,9 @@ examples:
   hitl-slam correct run.clf.gz --corrections fixes.jsonl -o fixed.g2o --session run.hitl
   hitl-slam correct map.covars --corrections fixes.jsonl -o fixed.pgm --keep-going
 
-MAP is a .covars file, a CARMEN log (.clf/.log, optionally .gz/.bz2) or a session (.hitl, its
-current map). The corrections file has one JSON object per line, applied in order, each on the
+MAP is a .covars file, a CARMEN log (.clf/.log, optionally .gz/.bz2), a ROS bag (.bag, .db3,
+.mcap or a ROS 2 bag directory; see "ROS bags" below) or a session (.hitl, its current map). The
+corrections file has one JSON object per line, applied in order, each on the
 map as it stands after the previous ones:
 
   {"mode": "collinear", "a": [[1.20, 3.40], [4.10, 3.45]], "b": [[10.0, 3.9], [13.2, 4.0]]}
@@ -124,25 +126,40 @@ examples:
   hitl-slam export map.covars -o map.txt         # trajectory, TUM: t x y z qx qy qz qw
   hitl-slam export run.hitl -o run.png           # a picture of the map (.png or .svg)
 
-MAP_OR_SESSION is a .covars file, a CARMEN log (.clf/.log, optionally .gz/.bz2) or a session
-(.hitl). OUT's extension picks the format: .covars, .g2o, .txt, .pgm, .png or .svg (a figure,
-needs the plot extra), or .jsonl (corrections; only from a session, whose file is read and never
-changed). OUT may not be the input (the same file, also through a link) unless --force.
+MAP_OR_SESSION is a .covars file, a CARMEN log (.clf/.log, optionally .gz/.bz2), a ROS bag (.bag,
+.db3, .mcap or a ROS 2 bag directory) or a session (.hitl). OUT's extension picks the format:
+.covars, .g2o, .txt, .pgm, .png or .svg (a figure, needs the plot extra), or .jsonl (corrections;
+only from a session, whose file is read and never changed). OUT may not be the input (the same
+file, also through a link) unless --force.
 """
 
 _METRICS_EPILOG = """\
 examples:
   hitl-slam metrics fixed.covars
   hitl-slam metrics fr079.clf.bz2 --relations fr079.relations
+  hitl-slam metrics restamped.bag --relations fr079.relations --tolerance 0.05
   hitl-slam metrics run.hitl --heat-map run-heat.png
 
-MAP is a .covars file, a CARMEN log (.clf/.log, optionally .gz/.bz2) or a session (.hitl, its
-current map). Inconsistency (Nashed and Biswas 2018): summed over ordered pairs of scans, the area
-one scan sees as free space and the other as occupied, on a grid of --resolution cells, in m^2
-(lower is better; a perfect map scores near zero). With --relations (Kuemmerle et al. 2009,
-"t1 t2 dx dy dz roll pitch yaw" lines matched to the scans by timestamp): mean +- standard
-deviation of |t_est - t_true| (m) and |yaw_est - yaw_true| (deg) of the relative poses.
+MAP is a .covars file, a CARMEN log (.clf/.log, optionally .gz/.bz2), a ROS bag (.bag, .db3,
+.mcap or a ROS 2 bag directory) or a session (.hitl, its current map). Inconsistency (Nashed and
+Biswas 2018): summed over ordered pairs of scans, the area one scan sees as free space and the
+other as occupied, on a grid of --resolution cells, in m^2 (lower is better; a perfect map scores
+near zero). With --relations (Kuemmerle et al. 2009, "t1 t2 dx dy dz roll pitch yaw" lines
+matched to the nearest scans by timestamp): mean +- standard deviation of |t_est - t_true| (m)
+and |yaw_est - yaw_true| (deg) of the relative poses. A relation with a timestamp farther than
+--tolerance (default 0.001 s) from every scan is skipped: the line says how many were matched and
+how many skipped, so a cut log scores on what it kept, and a larger --tolerance scores a log whose
+stamps moved (e.g. re-stamped by 0.02 s: --tolerance 0.05, below half the scan period).
 --heat-map draws the per-cell count of contradicting scan pairs over the map as a PNG.
+"""
+
+_BAGS_NOTE = """
+ROS bags (needs the ros extra: pip install 'hitl-slam[ros]'): the scans of the bag's
+sensor_msgs/LaserScan topic (--scan-topic when it has several), the odometry from /tf
+(--odom-frame -> --base-frame) or a nav_msgs/Odometry topic (--odom-topic), interpolated at each
+scan's stamp, and the laser's mounting from /tf_static. When /tf has map -> odom (slam_toolbox,
+Cartographer), the poses are the SLAM's own trajectory; --map-frame '' keeps the odometry's.
+Points are kept in the robot's frame (base_link).
 """
 
 
@@ -181,7 +198,10 @@ def _load_map(args: argparse.Namespace, source: str | Path) -> Map:
     from hitl_slam.io.maps import load_map
 
     max_range = getattr(args, "max_range", None)
-    the_map = _with_progress("loading", args.quiet, lambda: load_map(source, max_range=max_range))
+    bag = _bag_options(args)
+    the_map = _with_progress(
+        "loading", args.quiet, lambda: load_map(source, max_range=max_range, bag=bag)
+    )
     how = the_map.metadata.get("max_range_source")
     if isinstance(how, str) and how.startswith("inferred"):
         print(f"hitl-slam: {source}: maximum laser range {how}", file=sys.stderr)
@@ -193,9 +213,57 @@ def _add_max_range(parser: argparse.ArgumentParser) -> None:
         "--max-range",
         type=float,
         metavar="M",
-        help="the laser's maximum range in metres (CARMEN logs): readings at or beyond it are "
-        "no-returns, not obstacles; default: the log's PARAM robot_front_laser_max, else "
-        "inferred from readings piled at the largest value, else 80",
+        help="the laser's maximum range in metres (CARMEN logs, ROS bags): readings at or "
+        "beyond it are no-returns, not obstacles; default: a bag's range_max, a log's PARAM "
+        "robot_front_laser_max, else inferred from readings piled at the largest value, else 80",
+    )
+
+
+def _add_bag_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group(
+        "ROS bags", "what to read from a .bag, .db3, .mcap or ROS 2 bag directory"
+    )
+    group.add_argument(
+        "--scan-topic",
+        metavar="TOPIC",
+        help="the sensor_msgs/LaserScan topic (default: the bag's only one)",
+    )
+    group.add_argument(
+        "--odom-topic",
+        metavar="TOPIC",
+        help="take the odometry from this nav_msgs/Odometry topic (default: /tf odom -> "
+        "base_link, else the bag's only Odometry topic)",
+    )
+    group.add_argument(
+        "--odom-frame", default="odom", metavar="FRAME", help="the odometry frame (default odom)"
+    )
+    group.add_argument(
+        "--base-frame",
+        default="base_link",
+        metavar="FRAME",
+        help="the robot's frame, in which the points are kept (default base_link)",
+    )
+    group.add_argument(
+        "--map-frame",
+        default="map",
+        metavar="FRAME",
+        help="the SLAM's map frame: when /tf has FRAME -> odom, the poses are the SLAM's "
+        "trajectory (default map; '' for the odometry's)",
+    )
+
+
+def _bag_options(args: argparse.Namespace) -> BagOptions | None:
+    """The ROS bag options of a command that has them, or None."""
+    if not hasattr(args, "scan_topic"):
+        return None
+    from hitl_slam.io.rosbag import BagOptions
+
+    return BagOptions(
+        scan_topic=args.scan_topic,
+        odom_topic=args.odom_topic,
+        odom_frame=args.odom_frame,
+        base_frame=args.base_frame,
+        map_frame=args.map_frame or None,
     )
 
 
@@ -238,6 +306,9 @@ def _refuse_overwriting_inputs(
 _MAP_KINDS = {
     ".clf": "a CARMEN log",
     ".log": "a CARMEN log",
+    ".bag": "a ROS bag",
+    ".db3": "a ROS bag",
+    ".mcap": "a ROS bag",
     ".covars": "a .covars map",
     ".hitl": "a session",
 }
@@ -613,11 +684,20 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
                 f"--resolution must be a positive number of metres, got {args.resolution}"
             )
         config = DEFAULT.replace(grid_resolution=args.resolution)
+    if args.tolerance is not None and args.relations is None:
+        raise InputError("--tolerance goes with --relations; add the relations file, or drop it")
+    tolerance = 1e-3 if args.tolerance is None else args.tolerance
+    if not (math.isfinite(tolerance) and tolerance >= 0):
+        raise InputError(f"--tolerance must be a number of seconds >= 0, got {args.tolerance}")
     # Read before the (slower) map, so a bad relations file fails fast.
     relations = None if args.relations is None else read_relations(args.relations)
     the_map = _load_map(args, args.map)
     # Matched before the metric runs, so relations that do not fit the map fail before any output.
-    err = None if relations is None else relations_error(the_map, None, relations)
+    err = (
+        None
+        if relations is None
+        else relations_error(the_map, None, relations, tolerance=tolerance)
+    )
     t0 = time.perf_counter()
     result = _with_progress(
         "inconsistency", args.quiet, lambda: inconsistency(the_map, None, config)
@@ -631,7 +711,8 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
     )
     if err is not None:
         print(
-            f"relations: {err.count}, translation {err.translation_mean:.4f} +- "
+            f"relations: {err.matched} matched, {err.skipped} skipped (no scan within "
+            f"{err.tolerance:g} s), translation {err.translation_mean:.4f} +- "
             f"{err.translation_std:.4f} m (max {err.translation_max:.4f}), rotation "
             f"{err.rotation_mean_deg:.3f} +- {err.rotation_std_deg:.3f} deg "
             f"(max {err.rotation_max_deg:.3f})"
@@ -947,11 +1028,14 @@ def build_parser() -> argparse.ArgumentParser:
         "correct",
         help="apply a file of human corrections (JSON Lines) to a map",
         description="Apply scripted corrections to a map, in order, as a person would in the UI.",
-        epilog=_CORRECT_EPILOG,
+        epilog=_CORRECT_EPILOG + _BAGS_NOTE,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    correct.add_argument("map", metavar="MAP", help="input map (.covars, .clf/.log, .hitl)")
+    correct.add_argument(
+        "map", metavar="MAP", help="input map (.covars, .clf/.log, ROS bag, .hitl)"
+    )
     _add_max_range(correct)
+    _add_bag_options(correct)
     correct.add_argument(
         "--corrections", required=True, metavar="C.jsonl", help="corrections, one per line"
     )
@@ -1026,13 +1110,16 @@ def build_parser() -> argparse.ArgumentParser:
         "export",
         help="convert a map or session to another format, or a session to its corrections",
         description="Write a map or a session's current map in another format.",
-        epilog=_EXPORT_EPILOG,
+        epilog=_EXPORT_EPILOG + _BAGS_NOTE,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     export.add_argument(
-        "input", metavar="MAP_OR_SESSION", help="input map (.covars, .clf/.log) or session (.hitl)"
+        "input",
+        metavar="MAP_OR_SESSION",
+        help="input map (.covars, .clf/.log, ROS bag) or session (.hitl)",
     )
     _add_max_range(export)
+    _add_bag_options(export)
     export.add_argument("-o", "--output", required=True, metavar="OUT", help="output file")
     _add_force(export)
     export.add_argument("-q", "--quiet", action="store_true", help="only the summary line")
@@ -1058,13 +1145,23 @@ def build_parser() -> argparse.ArgumentParser:
         "metrics",
         help="score a map: inconsistency (m^2), and the error against ground-truth relations",
         description="Measure a map's global consistency and, given relations, its accuracy.",
-        epilog=_METRICS_EPILOG,
+        epilog=_METRICS_EPILOG + _BAGS_NOTE,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    metrics.add_argument("map", metavar="MAP", help="input map (.covars, .clf/.log, .hitl)")
+    metrics.add_argument(
+        "map", metavar="MAP", help="input map (.covars, .clf/.log, ROS bag, .hitl)"
+    )
     _add_max_range(metrics)
+    _add_bag_options(metrics)
     metrics.add_argument(
         "--relations", metavar="R", help="ground-truth relations (.relations) for the map's log"
+    )
+    metrics.add_argument(
+        "--tolerance",
+        type=float,
+        metavar="SECONDS",
+        help="match each relation's timestamps to the nearest scan within this many seconds "
+        "(default 0.001); relations farther from every scan are skipped and counted",
     )
     metrics.add_argument("--heat-map", metavar="OUT.png", help="write the per-cell heat map")
     metrics.add_argument(

@@ -1,7 +1,7 @@
 """Optional dependencies, installed as extras: ``[web]`` (fastapi, uvicorn, pydantic) for
-``hitl-slam serve`` and ``[plot]`` (matplotlib) for figures. ``import hitl_slam`` imports neither;
-what needs one calls :func:`require` first, so a missing extra is one line naming it instead of a
-traceback from deep inside.
+``hitl-slam serve``, ``[plot]`` (matplotlib) for figures and ``[ros]`` (rosbags) for ROS bags.
+``import hitl_slam`` imports none of them; what needs one calls :func:`require` first, so a
+missing extra is one line naming it instead of a traceback from deep inside.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ __all__ = ["EXTRAS", "missing_extra", "require"]
 EXTRAS: dict[str, tuple[str, ...]] = {
     "web": ("fastapi", "uvicorn", "pydantic"),
     "plot": ("matplotlib",),
+    "ros": ("rosbags",),
 }
 """The modules each extra installs (the ``[project.optional-dependencies]`` of pyproject.toml)."""
 

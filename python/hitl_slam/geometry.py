@@ -11,7 +11,16 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["chain_steps", "compose", "fit_line", "principal_axes", "to_world", "wrap"]
+__all__ = [
+    "chain_steps",
+    "compose",
+    "compose_rows",
+    "fit_line",
+    "invert",
+    "principal_axes",
+    "to_world",
+    "wrap",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -30,6 +39,32 @@ def compose(a: FloatArray, b: FloatArray) -> FloatArray:
     return np.stack(
         [a[0] + c * b[:, 0] - s * b[:, 1], a[1] + s * b[:, 0] + c * b[:, 1], theta], axis=1
     )
+
+
+def _half_open(theta: FloatArray) -> FloatArray:
+    """Angles already within one turn of (-pi, pi] moved into it."""
+    theta = np.where(theta > np.pi, theta - 2 * np.pi, theta)
+    return np.where(theta <= -np.pi, theta + 2 * np.pi, theta)
+
+
+def compose_rows(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Row by row ``a[k] * b[k]`` for poses ``(K, 3)``, heading in (-pi, pi]."""
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    return np.stack(
+        [
+            a[:, 0] + (c * b[:, 0] - s * b[:, 1]),
+            a[:, 1] + (s * b[:, 0] + c * b[:, 1]),
+            _half_open(a[:, 2] + b[:, 2]),
+        ],
+        axis=1,
+    )
+
+
+def invert(poses: FloatArray) -> FloatArray:
+    """Row by row ``x^-1`` for poses ``(K, 3)``, heading in (-pi, pi]."""
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    x, y = poses[:, 0], poses[:, 1]
+    return np.stack([-(c * x + s * y), s * x - c * y, _half_open(-poses[:, 2])], axis=1)
 
 
 def chain_steps(poses: FloatArray) -> FloatArray:

@@ -17,7 +17,7 @@ from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
 from hitl_slam.geometry import fit_line
-from hitl_slam.io.relations import Relations, match_relations
+from hitl_slam.io.relations import Relations, nearest_scans
 from hitl_slam.map import Map
 
 __all__ = [
@@ -161,18 +161,32 @@ class RelationsError:
     """Errors of the estimated relative poses against benchmark relations.
 
     Attributes:
-        translation: ``(K,)`` per-relation translational error [m].
+        translation: ``(K,)`` per-relation translational error [m], matched relations only.
         rotation_deg: ``(K,)`` per-relation rotational error [deg].
         pairs: ``(K, 2)`` int64 pose indices of each relation's two scans.
+        rows: ``(K,)`` int64 index of each scored relation in the relations given (None: all,
+            in order).
+        skipped: how many relations were skipped: a timestamp with no scan within
+            ``tolerance`` (a cut log, dropped scans).
+        tolerance: [s] how far from a relation's timestamp its scan could be.
     """
 
     translation: FloatArray
     rotation_deg: FloatArray
     pairs: NDArray[np.int64]
+    rows: NDArray[np.int64] | None = None
+    skipped: int = 0
+    tolerance: float = 1e-3
 
     @property
     def count(self) -> int:
+        """The relations matched (and scored)."""
         return int(self.translation.shape[0])
+
+    @property
+    def matched(self) -> int:
+        """The relations matched to two scans (:attr:`count`)."""
+        return self.count
 
     @property
     def translation_mean(self) -> float:
@@ -211,8 +225,10 @@ def relations_error(
 ) -> RelationsError:
     """The relative-pose error of ``poses`` (default: the map's) against ground-truth relations.
 
-    Each relation ``(t1, t2, dx, dy, yaw)`` is matched to the scans nearest its two timestamps
-    (within ``tolerance`` s; :func:`~hitl_slam.io.relations.match_relations`). With the estimated
+    Each relation ``(t1, t2, dx, dy, yaw)`` is matched to the scans nearest its two timestamps;
+    a relation with a timestamp farther than ``tolerance`` s from every scan is skipped and
+    counted (``skipped``: a log cut short; a larger tolerance scores a re-stamped log;
+    :func:`~hitl_slam.io.relations.nearest_scans`). With the estimated
     poses ``x_1``, ``x_2`` of those scans, the estimated relation is ``x_1^-1 x_2``: translation
     ``t_est = R(theta_1)^T (p_2 - p_1)`` and rotation ``yaw_est = theta_2 - theta_1``. Following
     Kuemmerle et al. (2009), translations and rotations are compared separately:
@@ -225,8 +241,8 @@ def relations_error(
     deviation, maximum and count.
 
     Raises:
-        InputError: bad poses, a map without timestamps, or a relation with no scan near one of
-            its timestamps.
+        InputError: bad poses, a map without timestamps, a bad tolerance, or no relation with
+            both its scans within the tolerance.
     """
     p = map.checked_poses(poses)
     if map.timestamps is None:
@@ -234,18 +250,23 @@ def relations_error(
             "the map has no timestamps to match relations to; load the map from the CARMEN "
             "log the relations were made for"
         )
-    pairs = match_relations(relations, map.timestamps, tolerance)
+    match = nearest_scans(relations, map.timestamps, tolerance)
+    pairs, rows = match.pairs, match.rows
     a, b = p[pairs[:, 0]], p[pairs[:, 1]]
     c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
     dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
     t_est = np.stack([c * dx + s * dy, -s * dx + c * dy], axis=1)
-    translation = np.hypot(*(t_est - relations.relative[:, :2]).T)
+    truth = relations.relative[rows]
+    translation = np.hypot(*(t_est - truth[:, :2]).T)
     yaw_est = b[:, 2] - a[:, 2]
-    rotation = np.degrees(np.abs(_wrap(yaw_est - relations.relative[:, 2])))
+    rotation = np.degrees(np.abs(_wrap(yaw_est - truth[:, 2])))
     return RelationsError(
         translation=np.ascontiguousarray(translation),
         rotation_deg=np.ascontiguousarray(rotation),
         pairs=pairs,
+        rows=rows,
+        skipped=int(match.skipped.size),
+        tolerance=match.tolerance,
     )
 
 

@@ -1,6 +1,7 @@
 """Load a map with observations from any supported file, choosing the reader by extension:
 ``.covars`` (the original tool's format), CARMEN logs (``.clf``/``.log``, optionally ``.gz`` or
-``.bz2``), or a session (``.hitl``, its current map).
+``.bz2``), ROS bags (``.bag``, ``.db3``, ``.mcap``, or a ROS 2 bag directory with its
+``metadata.yaml``), or a session (``.hitl``, its current map).
 """
 
 from __future__ import annotations
@@ -9,13 +10,15 @@ import os
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
+from hitl_slam.io.rosbag import BAG_EXTENSIONS, DEFAULT_BAG_OPTIONS, BagOptions, is_rosbag
 from hitl_slam.io.textfile import check_regular_file
 from hitl_slam.map import Map
 
 __all__ = ["MAP_EXTENSIONS", "load_map"]
 
-MAP_EXTENSIONS = (".covars", ".clf", ".log", ".hitl")
-"""What :func:`load_map` reads; CARMEN logs may also end in ``.gz`` or ``.bz2``."""
+MAP_EXTENSIONS = (".covars", ".clf", ".log", *BAG_EXTENSIONS, ".hitl")
+"""What :func:`load_map` reads; CARMEN logs may also end in ``.gz`` or ``.bz2``, and a ROS 2 bag
+may be its directory."""
 
 _COMPRESSED = (".gz", ".bz2")
 _POSE_GRAPHS = (".g2o", ".graph")
@@ -30,15 +33,23 @@ def _extensions(name: str) -> tuple[str, str]:
 
 
 def load_map(
-    path: str | os.PathLike[str], config: Config = DEFAULT, *, max_range: float | None = None
+    path: str | os.PathLike[str],
+    config: Config = DEFAULT,
+    *,
+    max_range: float | None = None,
+    bag: BagOptions | None = None,
 ) -> Map:
-    """The map in ``path``: ``.covars``, ``.clf``/``.log`` (+ ``.gz``/``.bz2``), or ``.hitl``
-    (the session's current poses; ``config`` does not apply, the session has its own).
+    """The map in ``path``: ``.covars``, ``.clf``/``.log`` (+ ``.gz``/``.bz2``), a ROS bag
+    (``.bag``, ``.db3``, ``.mcap`` or a ROS 2 bag directory; :func:`~hitl_slam.io.rosbag.
+    read_rosbag`, which needs the ``[ros]`` extra), or ``.hitl`` (the session's current poses;
+    ``config`` does not apply, the session has its own).
 
-    ``max_range`` (m, CARMEN logs only) overrides the laser's maximum range: readings at or
-    beyond it are no-returns, not points. Without it the log's ``PARAM`` is used, or the maximum
-    is inferred from readings piled at the largest value (``map.metadata["max_range_source"]``
-    says which).
+    ``max_range`` (m, CARMEN logs and ROS bags only) overrides the laser's maximum range: readings
+    at or beyond it are no-returns, not points. Without it a CARMEN log's ``PARAM`` is used, or
+    the maximum is inferred from readings piled at the largest value
+    (``map.metadata["max_range_source"]`` says which); a bag's scans carry their ``range_max``.
+    ``bag`` (ROS bags only): the topics and frames to read (default: the bag's only LaserScan
+    topic, ``odom``, ``base_link``, ``map``).
 
     Raises:
         InputError: an unsupported extension (the message lists the supported ones), or any
@@ -46,14 +57,23 @@ def load_map(
     """
     name = os.fspath(path)
     extension, compression = _extensions(name)
+    if not compression and is_rosbag(name):
+        from hitl_slam.io.rosbag import read_rosbag
+
+        return read_rosbag(name, bag or DEFAULT_BAG_OPTIONS, max_range=max_range, config=config)
+    if bag is not None and bag != DEFAULT_BAG_OPTIONS:
+        raise InputError(
+            f"{name}: topic and frame options (--scan-topic, --odom-topic, --odom-frame, "
+            "--base-frame, --map-frame) apply to ROS bags (.bag, .db3, .mcap); this is not one"
+        )
     if extension in (".clf", ".log"):
         from hitl_slam.io.carmen import read_carmen
 
         return read_carmen(name, config=config, max_range=max_range)
     if max_range is not None:
         raise InputError(
-            f"{name}: --max-range applies to CARMEN laser logs (.clf/.log); this map's points "
-            "are already filtered"
+            f"{name}: --max-range applies to laser logs (CARMEN .clf/.log, ROS bags); this "
+            "map's points are already filtered"
         )
     if not compression and extension == ".covars":
         from hitl_slam.io.covars import read_covars
@@ -74,5 +94,5 @@ def load_map(
         )
     raise InputError(
         f"{name}: cannot read a map from {shown!r}; supported: {supported} "
-        "(CARMEN logs also as .gz or .bz2)"
+        "(CARMEN logs also as .gz or .bz2; a ROS 2 bag also as its directory)"
     )

@@ -23,7 +23,7 @@ from hitl_slam.io.textfile import (
     read_lines,
 )
 
-__all__ = ["Relations", "match_relations", "read_relations"]
+__all__ = ["RelationMatch", "Relations", "match_relations", "nearest_scans", "read_relations"]
 
 _FIELDS = ("t1", "t2", "dx", "dy", "dz", "roll", "pitch", "yaw")
 # dx, dy, dz in metres, the angles in radians; the timestamps only need to be finite.
@@ -109,16 +109,35 @@ def read_relations(path: PathLike) -> Relations:
     )
 
 
-def match_relations(
-    relations: Relations, timestamps: ArrayLike, tolerance: float = 1e-3
-) -> NDArray[np.int64]:
-    """``(K, 2)`` int64 indices into ``timestamps`` of the scans at ``t1`` and ``t2``.
+@dataclass(frozen=True, eq=False)
+class RelationMatch:
+    """Relations matched to the scans nearest their timestamps.
 
-    Each relation time is matched to the nearest timestamp (the earlier one on a tie).
+    Attributes:
+        pairs: ``(M, 2)`` int64 indices into the timestamps of the scans at ``t1`` and ``t2`` of
+            each matched relation.
+        rows: ``(M,)`` int64 indices into the relations of the matched ones, in order.
+        skipped: ``(K - M,)`` int64 indices of the relations with a timestamp farther than
+            ``tolerance`` from every scan.
+        tolerance: [s] the tolerance used.
+    """
+
+    pairs: NDArray[np.int64]
+    rows: NDArray[np.int64]
+    skipped: NDArray[np.int64]
+    tolerance: float
+
+
+def nearest_scans(
+    relations: Relations, timestamps: ArrayLike, tolerance: float = 1e-3
+) -> RelationMatch:
+    """Match each relation's two times to the nearest timestamp (the earlier one on a tie); a
+    relation with a time farther than ``tolerance`` seconds from every timestamp is skipped (a
+    log cut short, or scans dropped). The timestamps need not be sorted.
 
     Raises:
-        InputError: no timestamps, or a relation time farther than ``tolerance`` seconds from
-            every timestamp (the first such relation is named, with its line).
+        InputError: no usable timestamps, a bad tolerance, or no relation matched (the first one
+            is named, with its line and the nearest scan time).
     """
     stamps = np.asarray(timestamps, dtype=np.float64).reshape(-1)
     if stamps.size == 0 or not np.all(np.isfinite(stamps)):
@@ -126,7 +145,7 @@ def match_relations(
             "the map has no usable timestamps to match relations to; "
             "load the map from the CARMEN log the relations were made for"
         )
-    if not (math.isfinite(tolerance) and tolerance >= 0):
+    if not (isinstance(tolerance, int | float) and math.isfinite(tolerance) and tolerance >= 0):
         raise InputError(f"tolerance must be a finite number >= 0 (seconds), got {tolerance!r}")
     order = np.argsort(stamps, kind="stable")
     ordered = stamps[order]
@@ -139,17 +158,53 @@ def match_relations(
     nearest = np.where(pick_left, left, right)
     error = np.abs(ordered[nearest] - wanted)
     far = np.any(error > tolerance, axis=1)
-    if far.any():
-        k = int(np.argmax(far))
+    if far.all():
+        k = 0
         column = int(np.argmax(error[k] > tolerance))
         when, nearest_time = float(wanted[k, column]), float(ordered[nearest[k, column]])
-        where = relations.source or "relations"
+        others = "" if len(relations) == 1 else f": none of the {len(relations)} relations fits"
         raise input_error(
-            where,
+            relations.source or "relations",
+            int(relations.lines[k]),
+            f"relation 1: no scan within {tolerance:g} s of t{column + 1} = {when!r} (nearest "
+            f"scan time {nearest_time!r}){others}",
+            "use the relations made for this log, with the map read from that log "
+            "without subsampling, or a larger tolerance (--tolerance) for a re-stamped log",
+        )
+    return RelationMatch(
+        pairs=order[nearest[~far]].astype(np.int64),
+        rows=np.flatnonzero(~far).astype(np.int64),
+        skipped=np.flatnonzero(far).astype(np.int64),
+        tolerance=float(tolerance),
+    )
+
+
+def match_relations(
+    relations: Relations, timestamps: ArrayLike, tolerance: float = 1e-3
+) -> NDArray[np.int64]:
+    """``(K, 2)`` int64 indices into ``timestamps`` of the scans at ``t1`` and ``t2``: every
+    relation must match (:func:`nearest_scans` skips those that do not).
+
+    Each relation time is matched to the nearest timestamp (the earlier one on a tie).
+
+    Raises:
+        InputError: no timestamps, or a relation time farther than ``tolerance`` seconds from
+            every timestamp (the first such relation is named, with its line).
+    """
+    match = nearest_scans(relations, timestamps, tolerance)
+    if match.skipped.size:
+        stamps = np.asarray(timestamps, dtype=np.float64).reshape(-1)
+        k = int(match.skipped[0])
+        wanted = (float(relations.t1[k]), float(relations.t2[k]))
+        gaps = [float(np.min(np.abs(stamps - t))) for t in wanted]
+        column = 0 if gaps[0] > tolerance else 1
+        nearest_time = float(stamps[np.argmin(np.abs(stamps - wanted[column]))])
+        raise input_error(
+            relations.source or "relations",
             int(relations.lines[k]),
             f"relation {k + 1}: no scan within {tolerance:g} s of t{column + 1} = "
-            f"{when!r} (nearest scan time {nearest_time!r})",
+            f"{wanted[column]!r} (nearest scan time {nearest_time!r})",
             "use the relations made for this log, with the map read from that log "
             "without subsampling, or a larger tolerance",
         )
-    return order[nearest].astype(np.int64)
+    return match.pairs
