@@ -574,6 +574,10 @@ def _cmd_slam(args: argparse.Namespace) -> int:
             f"{out}: already exists; a session file is never overwritten: choose another name or "
             "delete the old one"
         )
+    from hitl_slam.io.rosbag import is_rosbag
+
+    if is_rosbag(args.log):
+        args.map_frame = ""  # the front end starts from the odometry, not the bag's own SLAM
     raw = _load_map(args, args.log)
     if not args.quiet:
         print(f"{args.log}: {raw.num_poses} scans, {raw.num_points} points")
@@ -1057,7 +1061,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="build a map from a raw laser log with the scan-matching front end",
         description=(
             "Run the scan-matching front end over a raw laser log (CARMEN .clf/.log, optionally "
-            ".gz/.bz2): every scan matched to the local map (correlative search, then "
+            ".gz/.bz2, or a ROS 1 / ROS 2 bag, read from its odometry whatever map -> odom it "
+            "holds): every scan matched to the local map (correlative search, then "
             "point-to-line ICP), keyframes and submaps, loop closures found by branch and bound "
             "and weighed by dynamic covariance scaling. Writes the map: a session (.hitl, ready "
             "for `hitl-slam serve`) or any export format."
@@ -1065,8 +1070,11 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=_SLAM_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    slam_cmd.add_argument("log", metavar="LOG", help="the raw log (CARMEN .clf/.log[.gz|.bz2])")
+    slam_cmd.add_argument(
+        "log", metavar="LOG", help="the raw log: CARMEN .clf/.log[.gz|.bz2], or a ROS bag"
+    )
     _add_max_range(slam_cmd)
+    _add_bag_options(slam_cmd)
     slam_cmd.add_argument(
         "-o",
         "--output",
