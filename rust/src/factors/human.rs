@@ -85,10 +85,9 @@ fn check_points(points: &[[f64; 2]]) -> Result<()> {
 ///
 /// Every point's residual is linear in the same three numbers, `w (q . s + d)` with
 /// `q = R(theta)^T n` (the line's normal in the robot frame) and `d = n . t - rho`: the residual
-/// vector is `w P [q; d]` with `P` the `K x 3` matrix of rows `[s_x, s_y, 1]`. With `P = Q T`
-/// (thin QR by Givens rotations, `T` upper triangular 3 x 3), `|w P v|^2 = |w T v|^2` for every
-/// `v`, so the factor is stored as the (at most) three rows of `w T` instead of K rows: the
-/// same cost, gradient and
+/// vector is `w P [q; d]` with `P` the `K x 3` matrix of rows `[s_x, s_y, 1]`. With `P = Q T` (thin
+/// QR, `T` upper triangular 3 x 3), `|w P v|^2 = |w T v|^2` for every `v`, so the factor is stored
+/// as the (at most) three rows of `w T` instead of K rows: the same cost, gradient and
 /// Gauss-Newton matrix (the Jacobians are `w P dv` and `w T dv`, and `P^T P = T^T T`), and a
 /// robust kernel on the whole factor sees the same chi2, at a cost independent of the number of
 /// points. A pose that saw three points or fewer keeps them as rows.
@@ -113,26 +112,14 @@ impl PointsToLineFactor {
                 .map(|p| [weight * p[0], weight * p[1], weight])
                 .collect()
         } else {
-            // The triangular factor by Givens rotations, one row at a time (a QR without
-            // forming the K x 3 matrix).
-            let mut t = [[0.0f64; 3]; 3];
-            for p in &points {
-                let mut v = [p[0], p[1], 1.0];
-                for j in 0..3 {
-                    if v[j] == 0.0 {
-                        continue;
-                    }
-                    let r = t[j][j].hypot(v[j]);
-                    let (c, s) = (t[j][j] / r, v[j] / r);
-                    for k in j..3 {
-                        let (a, b) = (t[j][k], v[k]);
-                        t[j][k] = c * a + s * b;
-                        v[k] = -s * a + c * b;
-                    }
-                }
-            }
-            t.iter()
-                .map(|r| [weight * r[0], weight * r[1], weight * r[2]])
+            let p = nalgebra::DMatrix::from_fn(points.len(), 3, |i, j| match j {
+                0 => points[i][0],
+                1 => points[i][1],
+                _ => 1.0,
+            });
+            let t = p.qr().r();
+            (0..3)
+                .map(|i| [weight * t[(i, 0)], weight * t[(i, 1)], weight * t[(i, 2)]])
                 .collect()
         };
         Ok(Self {
