@@ -48,4 +48,13 @@ pub mod values;
 #[cfg(feature = "python")]
 mod python;
 
+/// The extension's allocator. A correction's solves allocate and free buffers of a few MB each
+/// iteration (factor values, workspaces); with glibc's malloc those go to mmap and come back
+/// zeroed by page faults, and two solves on two threads then queue on the process's memory map
+/// (measured: the colocation guard's two parallel solves slower than one after the other).
+/// mimalloc keeps freed pages per thread for re-use.
+#[cfg(feature = "python")]
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 pub use error::{HitlError, Result};

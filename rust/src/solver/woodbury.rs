@@ -58,6 +58,9 @@ pub(super) struct LowRank {
     cap: Vec<f64>,
     /// Length r: `W^T L^-1 b`, then `S^-1 W^T L^-1 b`.
     t: Vec<f64>,
+    /// Per supernode of the factor, whether the forward solve of the current wide factor's
+    /// columns reaches it (workspace of [`Cholesky::forward_cols`]).
+    seen: Vec<bool>,
     /// Length n each: the right-hand side, and for refinement the residual, `|H| |x|` and the
     /// correction.
     b: Vec<f64>,
@@ -192,9 +195,11 @@ impl LowRank {
                 }
             }
             reach.clear();
-            l.forward_cols(w, f.rows, |s0, s1| match reach.last_mut() {
-                Some(last) if last.1 == s0 => last.1 = s1,
-                _ => reach.push((s0, s1)),
+            l.forward_cols(w, f.rows, Some((ix, &mut self.seen)), |s0, s1| {
+                match reach.last_mut() {
+                    Some(last) if last.1 == s0 => last.1 = s1,
+                    _ => reach.push((s0, s1)),
+                }
             });
             col0 += f.rows;
         }
@@ -390,7 +395,18 @@ impl<'a> Cholesky<'a> {
     /// the row range of every supernode it works on. The supernodal path skips every supernode
     /// whose rows are still zero: a wide factor's columns touch a few hundred poses, and only
     /// their elimination-tree ancestors are visited.
-    fn forward_cols(&self, x: &mut [f64], k: usize, mut visit: impl FnMut(usize, usize)) {
+    ///
+    /// With `seeds` (the rows where the columns may be non-zero, and a workspace), supernodes
+    /// are skipped by structure instead of by scanning their rows for non-zeros: `L^-1 b` can
+    /// be non-zero only on the elimination-tree ancestors of `b`'s rows, and a supernode's
+    /// parent is the one holding the smallest row of its pattern.
+    fn forward_cols(
+        &self,
+        x: &mut [f64],
+        k: usize,
+        seeds: Option<(&[usize], &mut Vec<bool>)>,
+        mut visit: impl FnMut(usize, usize),
+    ) {
         let n = self.symbolic.nrows();
         match self.symbolic.raw() {
             SymbolicCholeskyRaw::Simplicial(sm) => {
@@ -401,13 +417,43 @@ impl<'a> Cholesky<'a> {
                 visit(0, n);
             }
             SymbolicCholeskyRaw::Supernodal(sn) => {
-                for s in 0..sn.n_supernodes() {
+                let ns = sn.n_supernodes();
+                let begin = sn.supernode_begin();
+                // The supernode holding row `row` (supernodes are contiguous, in order).
+                let owner = |row: usize| begin.partition_point(|&b| b <= row).saturating_sub(1);
+                let mut seen = match seeds {
+                    Some((rows, seen)) => {
+                        seen.clear();
+                        seen.resize(ns, false);
+                        for &row in rows {
+                            if row < n {
+                                seen[owner(row)] = true;
+                            }
+                        }
+                        Some(seen)
+                    }
+                    None => None,
+                };
+                for s in 0..ns {
                     let Some((s0, size, pattern, vals)) = self.supernode(sn, s) else {
                         continue;
                     };
                     let s1 = s0 + size;
-                    if (0..k).all(|j| x[j * n + s0..j * n + s1].iter().all(|&v| v == 0.0)) {
-                        continue;
+                    match seen.as_deref_mut() {
+                        Some(seen) => {
+                            if !seen[s] {
+                                continue;
+                            }
+                            if let Some(&parent_row) = pattern.iter().min() {
+                                seen[owner(parent_row)] = true;
+                            }
+                        }
+                        None => {
+                            if (0..k).all(|j| x[j * n + s0..j * n + s1].iter().all(|&v| v == 0.0))
+                            {
+                                continue;
+                            }
+                        }
                     }
                     visit(s0, s1);
                     let nrows = size + pattern.len();
@@ -437,7 +483,7 @@ impl<'a> Cholesky<'a> {
 
     /// `x <- L^-1 x` for one column.
     fn forward(&self, x: &mut [f64]) {
-        self.forward_cols(x, 1, |_, _| {});
+        self.forward_cols(x, 1, None, |_, _| {});
     }
 
     /// `x <- L^-T x` for one column.
