@@ -195,12 +195,15 @@ impl LowRank {
                 }
             }
             reach.clear();
-            l.forward_cols(w, f.rows, Some((ix, &mut self.seen)), |s0, s1| {
-                match reach.last_mut() {
+            l.forward_cols(
+                w,
+                f.rows,
+                Some((ix, &mut self.seen)),
+                |s0, s1| match reach.last_mut() {
                     Some(last) if last.1 == s0 => last.1 = s1,
                     _ => reach.push((s0, s1)),
-                }
-            });
+                },
+            );
             col0 += f.rows;
         }
         // S = I + W^T W: W's column k is zero outside the reach of its factor, so each entry
@@ -449,8 +452,7 @@ impl<'a> Cholesky<'a> {
                             }
                         }
                         None => {
-                            if (0..k).all(|j| x[j * n + s0..j * n + s1].iter().all(|&v| v == 0.0))
-                            {
+                            if (0..k).all(|j| x[j * n + s0..j * n + s1].iter().all(|&v| v == 0.0)) {
                                 continue;
                             }
                         }
