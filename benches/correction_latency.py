@@ -73,6 +73,9 @@ def _forget_analyses() -> None:
         entry[1].clear_cache()
 
 
+TIMERS: dict[str, Callable[[], object]] = {}
+"""Per case, the timed correction as a call, for ``--serve``."""
+
 STATES: dict[str, tuple[FloatArray, list[Interpretation], DrawnCorrection]] = {}
 LOADED: dict[str, tuple[FloatArray, list[Interpretation], DrawnCorrection]] = {}
 """The state each case timed its correction on (poses, earlier corrections, the drawing), kept
@@ -150,9 +153,11 @@ def corridor_case(repeats: int, log: Callable[[str], None]) -> dict[str, object]
     if timed is None:
         raise RuntimeError("no drawing left for the timed correction")
     STATES["corridor"] = (poses, active, timed)
+    TIMERS["corridor"] = lambda: apply_correction(m, poses, timed, active, DEFAULT)
     times = _time(lambda: apply_correction(m, poses, timed, active, DEFAULT), repeats)
     last = apply_correction(m, poses, timed, active, DEFAULT)
     return {
+        "case": "corridor",
         "map": "generated corridor building (hitl_slam.sim.corridor_loop, 11.6 laps)",
         "poses": m.num_poses,
         "points": m.num_points,
@@ -253,9 +258,11 @@ def fr079_case(repeats: int, log: Callable[[str], None]) -> dict[str, object] | 
         log("fr079: no drawing left for the timed correction")
         return None
     STATES["fr079"] = (poses, active, timed)
+    TIMERS["fr079"] = lambda: apply_correction(m, poses, timed, active, DEFAULT)
     times = _time(lambda: apply_correction(m, poses, timed, active, DEFAULT), repeats)
     last = apply_correction(m, poses, timed, active, DEFAULT)
     return {
+        "case": "fr079",
         "map": (
             "Freiburg 079 (corrected log damaged by heading faults of +2 / -1.5 degrees "
             "every 400 scans)"
@@ -303,10 +310,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         "exactly the same states, alternating with this build in separate processes, and report "
         "the ratio",
     )
-    parser.add_argument("--rounds", type=int, default=3, help="alternations with --baseline")
+    parser.add_argument("--rounds", type=int, default=3, help="with --baseline: each build times each case rounds x repeats times, the two builds taking turns")
     parser.add_argument("--save-state", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--load-state", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--serve", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     log = lambda msg: print(msg, file=sys.stderr)  # noqa: E731
     if args.baseline:
@@ -326,7 +334,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         with args.save_state.open("wb") as f:
             pickle.dump(STATES, f)
     if args.json:
-        print(json.dumps(rows))
+        print(json.dumps(rows), flush=True)
+        if args.serve:
+            _serve()
         return 0
     body = "\n".join(
         [
@@ -349,6 +359,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+def _serve() -> None:
+    """A worker of ``side_by_side``: times one correction of the case named on each line of
+    standard input and answers with its seconds, until standard input closes."""
+    for line in sys.stdin:
+        apply = TIMERS[line.strip()]
+        _forget_analyses()
+        t = time.perf_counter()
+        apply()
+        print(repr(time.perf_counter() - t), flush=True)
+
+
 def _run(pythonpath: str, extra: list[str], log: Callable[[str], None]) -> list[dict[str, object]]:
     env = {**os.environ, "PYTHONPATH": f"{pythonpath}{os.pathsep}{ROOT / 'benches'}"}
     out = subprocess.run(
@@ -363,9 +384,24 @@ def _run(pythonpath: str, extra: list[str], log: Callable[[str], None]) -> list[
     return rows
 
 
+def _worker(pythonpath: str, state: Path) -> subprocess.Popen[str]:
+    env = {**os.environ, "PYTHONPATH": f"{pythonpath}{os.pathsep}{ROOT / 'benches'}"}
+    return subprocess.Popen(
+        [sys.executable, __file__, "--repeats", "1", "--load-state", str(state), "--json"]
+        + ["--serve"],
+        env=env,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=None if os.environ.get("LATENCY_VERBOSE") else subprocess.DEVNULL,
+        text=True,
+    )
+
+
 def side_by_side(baseline: str, rounds: int, repeats: int, log: Callable[[str], None]) -> str:
-    """This build and ``baseline`` timed on the same states (made once by this build), in
-    alternating processes; medians over every round's repeats."""
+    """This build and ``baseline`` timed on the same states (made once by this build): one
+    worker process per build holds the maps, and the two take turns correction by correction
+    (ABBA order), so that a slow spell of a shared machine falls on both alike; medians over
+    ``rounds * repeats`` corrections each."""
     import compare_gtsam as shared
 
     this = str(ROOT / "python")
@@ -373,15 +409,33 @@ def side_by_side(baseline: str, rounds: int, repeats: int, log: Callable[[str], 
         state = Path(tmp) / "state.pickle"
         log("building the states (15 corrections per map) with this build ...")
         _run(this, ["--repeats", "1", "--save-state", str(state)], log)
-        times: dict[str, dict[str, list[float]]] = {"baseline": {}, "this": {}}
+        workers = {}
         info: dict[str, dict[str, object]] = {}
-        for r in range(rounds):
-            for name, path in (("baseline", baseline), ("this", this)):
-                log(f"round {r + 1}/{rounds}: {name}")
-                for row in _run(path, ["--repeats", str(repeats), "--load-state", str(state)], log):
-                    key = str(row["map"])
-                    times[name].setdefault(key, []).extend(row["times"])  # type: ignore[arg-type]
-                    info.setdefault(key, row)
+        for name, path in (("baseline", baseline), ("this", this)):
+            log(f"loading the maps in the {name} build ...")
+            w = _worker(path, state)
+            assert w.stdout is not None
+            rows = json.loads(w.stdout.readline())
+            for row in rows:
+                info.setdefault(str(row["case"]), row)
+            workers[name] = w
+        times: dict[str, dict[str, list[float]]] = {"baseline": {}, "this": {}}
+        try:
+            for case in info:
+                for k in range(rounds * repeats):
+                    order = ("baseline", "this") if k % 2 == 0 else ("this", "baseline")
+                    for name in order:
+                        w = workers[name]
+                        assert w.stdin is not None and w.stdout is not None
+                        w.stdin.write(case + "\n")
+                        w.stdin.flush()
+                        times[name].setdefault(case, []).append(float(w.stdout.readline()))
+                log(f"{case}: timed")
+        finally:
+            for w in workers.values():
+                if w.stdin is not None:
+                    w.stdin.close()
+                w.wait()
     lines = [
         "| map | poses | points | earlier corrections | baseline median (ms) | this build "
         "median (ms) | ratio |",
@@ -391,16 +445,17 @@ def side_by_side(baseline: str, rounds: int, repeats: int, log: Callable[[str], 
         b = 1e3 * statistics.median(times["baseline"][key])
         t = 1e3 * statistics.median(times["this"][key])
         lines.append(
-            f"| {key} | {row['poses']} | {row['points']} | {row['earlier']} | {b:.1f} | {t:.1f} "
-            f"| {t / b:.2f} |"
+            f"| {row['map']} | {row['poses']} | {row['points']} | {row['earlier']} | {b:.1f} "
+            f"| {t:.1f} | {t / b:.2f} |"
         )
     return "\n".join(
         [
             *shared.provenance(),
             "",
             f"The same correction on the same state (made once by this build) timed in both "
-            f"builds, {rounds} alternating rounds of {repeats} in separate processes; medians. "
-            f"Baseline: `{baseline}`. Each timed correction pays for its own symbolic analysis.",
+            f"builds, {rounds * repeats} times each: one process per build, taking turns "
+            f"correction by correction (ABBA); medians. Baseline: `{baseline}`. Each timed "
+            f"correction pays for its own symbolic analysis.",
             "",
             *lines,
         ]

@@ -18,6 +18,8 @@ use faer::sparse::linalg::triangular_solve::{
 use faer::sparse::SparseColMatRef;
 use faer::{Conj, MatMut, Par};
 
+use rayon::prelude::*;
+
 use crate::error::{HitlError, Result};
 
 /// Marks "not wide" in `LowRank::of_factor`.
@@ -58,9 +60,6 @@ pub(super) struct LowRank {
     cap: Vec<f64>,
     /// Length r: `W^T L^-1 b`, then `S^-1 W^T L^-1 b`.
     t: Vec<f64>,
-    /// Per supernode of the factor, whether the forward solve of the current wide factor's
-    /// columns reaches it (workspace of [`Cholesky::forward_cols`]).
-    seen: Vec<bool>,
     /// Length n each: the right-hand side, and for refinement the residual, `|H| |x|` and the
     /// correction.
     b: Vec<f64>,
@@ -177,49 +176,65 @@ impl LowRank {
         }
         let n = l.symbolic.nrows();
         let r = self.rank;
-        let mut col0 = 0;
-        for (f, reach) in self.factors.iter().zip(self.reach.iter_mut()) {
-            let w = &mut self.w[col0 * n..(col0 + f.rows) * n];
-            // Only the last reach can be non-zero: clearing it is clearing W's columns.
-            for col in w.chunks_mut(n) {
-                for &(a, b) in reach.iter() {
-                    col[a..b].fill(0.0);
-                }
-            }
-            let ix = &self.idx[f.idx..f.idx + f.len];
-            for row in 0..f.rows {
-                let v = &self.val[f.val + row * f.len..f.val + (row + 1) * f.len];
-                let col = &mut w[row * n..(row + 1) * n];
-                for (&i, &u) in ix.iter().zip(v) {
-                    col[i] = u;
-                }
-            }
-            reach.clear();
-            l.forward_cols(
-                w,
-                f.rows,
-                Some((ix, &mut self.seen)),
-                |s0, s1| match reach.last_mut() {
-                    Some(last) if last.1 == s0 => last.1 = s1,
-                    _ => reach.push((s0, s1)),
-                },
-            );
-            col0 += f.rows;
+        // Each wide factor's columns of W on their own, in parallel (the same arithmetic as one
+        // after the other: the columns do not interact).
+        let mut columns = Vec::with_capacity(self.factors.len());
+        let mut rest = self.w.as_mut_slice();
+        for f in &self.factors {
+            let (w, tail) = rest.split_at_mut(f.rows * n);
+            columns.push(w);
+            rest = tail;
         }
-        // S = I + W^T W: W's column k is zero outside the reach of its factor, so each entry
-        // needs only the rows of one reach.
-        let mut k = 0;
-        for (f, reach) in self.factors.iter().zip(&self.reach) {
-            for _ in 0..f.rows {
-                let wk = &self.w[k * n..(k + 1) * n];
-                for l in k..r {
-                    let wl = &self.w[l * n..(l + 1) * n];
-                    let s = dot_over(reach, wk, wl);
-                    self.cap[k * r + l] = s;
-                    self.cap[l * r + k] = s;
+        let (idx, val) = (&self.idx, &self.val);
+        self.factors
+            .par_iter()
+            .zip(self.reach.par_iter_mut())
+            .zip(columns.into_par_iter())
+            .for_each_init(Vec::new, |seen, ((f, reach), w)| {
+                // Only the last reach can be non-zero: clearing it is clearing W's columns.
+                for col in w.chunks_mut(n) {
+                    for &(a, b) in reach.iter() {
+                        col[a..b].fill(0.0);
+                    }
                 }
-                self.cap[k * r + k] += 1.0;
-                k += 1;
+                let ix = &idx[f.idx..f.idx + f.len];
+                for row in 0..f.rows {
+                    let v = &val[f.val + row * f.len..f.val + (row + 1) * f.len];
+                    let col = &mut w[row * n..(row + 1) * n];
+                    for (&i, &u) in ix.iter().zip(v) {
+                        col[i] = u;
+                    }
+                }
+                reach.clear();
+                l.forward_cols(w, f.rows, Some((ix, seen)), |s0, s1| {
+                    match reach.last_mut() {
+                        Some(last) if last.1 == s0 => last.1 = s1,
+                        _ => reach.push((s0, s1)),
+                    }
+                });
+            });
+        // S = I + W^T W: W's column k is zero outside the reach of its factor, so each entry
+        // needs only the rows of one reach. Column k's entries from the diagonal down, one
+        // column per task, then mirrored.
+        let mut reach_of = Vec::with_capacity(r);
+        for (f, reach) in self.factors.iter().zip(&self.reach) {
+            reach_of.extend(std::iter::repeat_n(reach, f.rows));
+        }
+        let w = &self.w;
+        self.cap
+            .par_chunks_mut(r)
+            .zip(reach_of.par_iter())
+            .enumerate()
+            .for_each(|(k, (col, reach))| {
+                let wk = &w[k * n..(k + 1) * n];
+                for (l, s) in col.iter_mut().enumerate().skip(k) {
+                    *s = dot_over(reach, wk, &w[l * n..(l + 1) * n]);
+                }
+                col[k] += 1.0;
+            });
+        for k in 0..r {
+            for l in k + 1..r {
+                self.cap[l * r + k] = self.cap[k * r + l];
             }
         }
         Ok(dense_cholesky(&mut self.cap, r))
