@@ -310,7 +310,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         "exactly the same states, alternating with this build in separate processes, and report "
         "the ratio",
     )
-    parser.add_argument("--rounds", type=int, default=3, help="with --baseline: each build times each case rounds x repeats times, the two builds taking turns")
+    parser.add_argument(
+        "--rounds",
+        type=int,
+        default=3,
+        help="with --baseline: each build times each case rounds x repeats times, taking turns",
+    )
     parser.add_argument("--save-state", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--load-state", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
@@ -387,8 +392,16 @@ def _run(pythonpath: str, extra: list[str], log: Callable[[str], None]) -> list[
 def _worker(pythonpath: str, state: Path) -> subprocess.Popen[str]:
     env = {**os.environ, "PYTHONPATH": f"{pythonpath}{os.pathsep}{ROOT / 'benches'}"}
     return subprocess.Popen(
-        [sys.executable, __file__, "--repeats", "1", "--load-state", str(state), "--json"]
-        + ["--serve"],
+        [
+            sys.executable,
+            __file__,
+            "--repeats",
+            "1",
+            "--load-state",
+            str(state),
+            "--json",
+            "--serve",
+        ],
         env=env,
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
@@ -426,7 +439,8 @@ def side_by_side(baseline: str, rounds: int, repeats: int, log: Callable[[str], 
                     order = ("baseline", "this") if k % 2 == 0 else ("this", "baseline")
                     for name in order:
                         w = workers[name]
-                        assert w.stdin is not None and w.stdout is not None
+                        assert w.stdin is not None
+                        assert w.stdout is not None
                         w.stdin.write(case + "\n")
                         w.stdin.flush()
                         times[name].setdefault(case, []).append(float(w.stdout.readline()))

@@ -110,12 +110,12 @@ an undo with nothing to undo and a redo with nothing to redo are rejected. Witho
 the run stops at the first one with exit code 2 and writes nothing; with --keep-going they are
 skipped and listed, and the rest still apply (exit code 0 once OUT is written).
 
-OUT's extension picks its format (.covars, .g2o, .txt TUM, .pgm + .yaml occupancy grid, .png
-or .svg figure). --session also keeps the whole run as a session file (a new file; an existing
-one is never overwritten) that `hitl-slam serve` or `hitl-slam export` can open. OUT and the
-session file are written together or not at all; OUT may not be MAP or C.jsonl (the same file,
-also through a link) unless --force. "moved" counts the poses a step moved by more than 1 mm or
-1 mrad.
+OUT's extension picks its format (.covars, .clf CARMEN log, .g2o, .txt TUM, .pgm + .yaml
+occupancy grid, .png or .svg figure). --session also keeps the whole run as a session file (a new
+file; an existing one is never overwritten) that `hitl-slam serve` or `hitl-slam export` can
+open. OUT and the session file are written together or not at all; OUT may not be MAP or C.jsonl
+(the same file, also through a link) unless --force. "moved" counts the poses a step moved by
+more than 1 mm or 1 mrad.
 """
 
 _EXPORT_EPILOG = """\
@@ -124,13 +124,15 @@ examples:
   hitl-slam export run.hitl -o run.jsonl         # its applied corrections, replayable
   hitl-slam export run.clf.gz -o run.pgm         # occupancy grid (+ run.yaml for map_server)
   hitl-slam export map.covars -o map.txt         # trajectory, TUM: t x y z qx qy qz qw
+  hitl-slam export run.hitl -o fixed.clf         # a CARMEN log with the corrected poses
   hitl-slam export run.hitl -o run.png           # a picture of the map (.png or .svg)
 
 MAP_OR_SESSION is a .covars file, a CARMEN log (.clf/.log, optionally .gz/.bz2), a ROS bag (.bag,
 .db3, .mcap or a ROS 2 bag directory) or a session (.hitl). OUT's extension picks the format:
-.covars, .g2o, .txt, .pgm, .png or .svg (a figure, needs the plot extra), or .jsonl (corrections;
-only from a session, whose file is read and never changed). OUT may not be the input (the same
-file, also through a link) unless --force.
+.covars, .clf (the map's own CARMEN log with only its poses changed, or one ROBOTLASER1 line per
+scan when the map did not come from one), .g2o, .txt, .pgm, .png or .svg (a figure, needs the
+plot extra), or .jsonl (corrections; only from a session, whose file is read and never changed).
+OUT may not be the input (the same file, also through a link) unless --force.
 """
 
 _METRICS_EPILOG = """\
@@ -1080,7 +1082,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--output",
         required=True,
         metavar="OUT",
-        help="output: .hitl, .covars, .g2o, .pgm, ...",
+        help="output: .hitl (a session), .clf (a CARMEN log), .covars, .g2o, .pgm, ...",
     )
     slam_cmd.add_argument(
         "--keyframe-distance",

@@ -21,6 +21,7 @@ from hitl_slam.errors import InputError
 from hitl_slam.extras import require
 from hitl_slam.io import save_graph
 from hitl_slam.io.atomic import atomic_binary_writer, atomic_outputs, atomic_write_text
+from hitl_slam.io.carmen_writer import write_carmen
 from hitl_slam.io.covars import write_covars
 from hitl_slam.io.textfile import PathLike, input_error
 from hitl_slam.map import Map
@@ -373,6 +374,7 @@ def write_figure(map: Map, poses: ArrayLike, path: PathLike) -> None:
 
 _WRITERS: dict[str, Callable[[Map, ArrayLike, PathLike], None]] = {
     ".covars": write_covars,
+    ".clf": write_carmen,
     ".g2o": write_g2o_map,
     ".txt": write_tum,
     ".pgm": _write_occupancy,
@@ -380,13 +382,14 @@ _WRITERS: dict[str, Callable[[Map, ArrayLike, PathLike], None]] = {
     ".svg": write_figure,
 }
 EXPORT_EXTENSIONS = tuple(_WRITERS)
-"""Extensions :func:`export` writes: ``.covars``, ``.g2o``, ``.txt`` (TUM), ``.pgm`` (+ yaml),
-``.png`` and ``.svg`` (a figure of the map; the ``plot`` extra)."""
+"""Extensions :func:`export` writes: ``.covars``, ``.clf`` (a CARMEN log), ``.g2o``, ``.txt``
+(TUM), ``.pgm`` (+ yaml), ``.png`` and ``.svg`` (a figure of the map; the ``plot`` extra)."""
 
 
 def export(map: Map, poses: ArrayLike, path: PathLike) -> None:
     """Write ``map`` with ``poses`` in the format named by the extension of ``path``:
-    ``.covars`` (HitL-SLAM), ``.g2o`` (pose graph), ``.txt`` (TUM trajectory), ``.pgm``
+    ``.covars`` (HitL-SLAM), ``.clf`` (a CARMEN log: :mod:`hitl_slam.io.carmen_writer`),
+    ``.g2o`` (pose graph), ``.txt`` (TUM trajectory), ``.pgm``
     (occupancy grid, with its ``.yaml``), ``.png`` / ``.svg`` (a picture of the map, as
     :func:`hitl_slam.plot.plot_map` draws it; needs matplotlib, the ``plot`` extra).
 
