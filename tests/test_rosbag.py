@@ -741,3 +741,39 @@ def test_a_signalling_nan_range_is_no_point_and_no_warning(tmp_path: Path) -> No
         warnings.simplefilter("error")
         m = read_rosbag(path)
     np.testing.assert_array_equal(m.offsets, [0, 2, 5])
+
+
+@pytest.mark.parametrize("kind", ["ros1", "sqlite3", "mcap"])
+@pytest.mark.parametrize("output", ["run.hitl", "run.clf", "run.g2o"])
+def test_slam_on_a_bad_bag_is_one_line_exit_2_and_writes_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], kind: str, output: str
+) -> None:
+    """Issue 14's bad inputs through `hitl-slam slam`: no LaserScan topic, a topic of the wrong
+    type, missing TF frames, no odometry, a truncated bag."""
+    no_scans = simple_bag(6)
+    no_scans.scans = []
+    cases: list[tuple[str, Bag, list[str], str]] = [
+        ("noscan", no_scans, [], "no sensor_msgs/LaserScan topic"),
+        ("wrongtype", simple_bag(6, odometry="topic"), ["--scan-topic", "/odom"], "not sensor"),
+        ("nomount", simple_bag(6, mount=None), [], "no transform from 'base_link'"),
+        ("noodom", simple_bag(6, odometry="none"), [], "no odometry"),
+        ("frames", simple_bag(6), ["--base-frame", "base_footprint"], "no odometry"),
+        ("cut", simple_bag(30), [], "truncated"),
+    ]
+    for name, bag, options, expected in cases:
+        path = write_bag(bag, tmp_path / name, kind)
+        if name == "cut":
+            storage = (
+                path
+                if path.is_file()
+                else next(p for p in path.iterdir() if p.name != "metadata.yaml")
+            )
+            storage.write_bytes(storage.read_bytes()[: storage.stat().st_size // 2])
+        out = tmp_path / output
+        before = sorted(p.name for p in tmp_path.iterdir())
+        assert main(["slam", str(path), "-o", str(out), *options]) == 2, name
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1, err
+        assert err.startswith(f"hitl-slam: error: {path}: "), err
+        assert expected in err, err
+        assert sorted(p.name for p in tmp_path.iterdir()) == before, name
