@@ -839,9 +839,10 @@ def test_occupancy_yaml_quotes_an_awkward_image_name(tmp_path: Path) -> None:
 
 def test_export_dispatches_on_extension_and_leaves_no_temporary_files(tmp_path: Path) -> None:
     room = room_map()
-    for name in ("m.covars", "m.g2o", "m.txt", "m.pgm"):
+    for name in ("m.covars", "m.clf", "m.g2o", "m.txt", "m.pgm"):
         export(room, room.poses, tmp_path / name)
     assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "m.clf",
         "m.covars",
         "m.g2o",
         "m.pgm",
@@ -851,7 +852,7 @@ def test_export_dispatches_on_extension_and_leaves_no_temporary_files(tmp_path: 
     assert read_covars(tmp_path / "m.covars").num_points == room.num_points
     path = tmp_path / "m.bmp"
     message = error_of(export, room, room.poses, path)
-    assert_error(message, path, None, "'.bmp'", ".covars, .g2o, .txt, .pgm, .png, .svg")
+    assert_error(message, path, None, "'.bmp'", ".covars, .clf, .g2o, .txt, .pgm, .png, .svg")
     assert not path.exists()
 
 
