@@ -75,6 +75,24 @@ export class Ui {
     $("st-journal").textContent = `journal ${j.next}/${j.loaded}`;
   }
 
+  /** The loop closures' part of the status bar and the buttons (null: the map has none). */
+  setLoops(summary) {
+    const has = summary !== null;
+    $("st-loops").hidden = !has;
+    $("loop-buttons").hidden = !has;
+    $("legend-loops").hidden = !has;
+    if (!has) return;
+    $("st-loops").textContent = summary.text;
+    const button = $("btn-loop-toggle");
+    button.disabled = summary.selected === null;
+    button.textContent = summary.selected !== null && summary.rejected ? "Reinstate" : "Reject";
+  }
+
+  setLoopsVisible(visible) {
+    $("btn-loops").classList.toggle("selected", visible);
+    $("btn-loops").setAttribute("aria-pressed", String(visible));
+  }
+
   setCursor(x, y) {
     $("st-cursor").textContent = `x ${x.toFixed(2)}  y ${y.toFixed(2)} m`;
   }
