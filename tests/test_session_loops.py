@@ -81,7 +81,9 @@ def test_rejecting_re_solves_without_the_edge_and_undo_redo_are_exact(
         before = s.poses.copy()
         step = s.set_loop_closure(1, True)
         after = s.poses.copy()
-        assert step.loop == 1 and step.rejected and step.status is EntryStatus.APPLIED
+        assert step.loop == 1
+        assert step.rejected
+        assert step.status is EntryStatus.APPLIED
         assert s.rejected_loop_closures == frozenset({1, FALSE_LOOP})
         assert np.abs(after - before).max() > 1e-4  # the map moved
         # Exactly the solve of the graph without the two rejected loop closures' edges.
@@ -256,9 +258,7 @@ def test_effective_maps_are_made_once_per_set_and_share_the_observations(loops_m
         effective_map(loops_map, frozenset({9}))
 
 
-def test_malformed_loop_closure_metadata_is_one_clear_error(
-    loops_map: Map, tmp_path: Path
-) -> None:
+def test_malformed_loop_closure_metadata_is_one_clear_error(loops_map: Map, tmp_path: Path) -> None:
     for key, value, message in [
         (EDGES, np.array([0, 0, 1, 2, 3, 4]), "listed twice"),
         (EDGES, np.array([10**6] * 6), "not an edge of the map"),

@@ -82,7 +82,8 @@ def test_reject_undo_redo_and_restart_keep_it_rejected(session_path: Path) -> No
         assert state["map_version"] > version
         assert state["last"]["kind"] == "loop_closure"
         assert state["last"]["iterations"] >= 1
-        assert state["can_undo"] and not state["can_redo"]
+        assert state["can_undo"]
+        assert not state["can_redo"]
         after = _poses(client)
         assert after != before
         # The same request again changes nothing: a conflict.
@@ -108,7 +109,8 @@ def test_reject_undo_redo_and_restart_keep_it_rejected(session_path: Path) -> No
         state = client.get("/api/state").json()
         assert state["loop_closures"]["rejected"] == [1, FALSE_LOOP]
         assert _poses(client) == after
-        assert state["can_undo"] and state["can_redo"]
+        assert state["can_undo"]
+        assert state["can_redo"]
         state = client.post("/api/redo").json()
         assert state["loop_closures"]["rejected"] == [1]
     host.close()

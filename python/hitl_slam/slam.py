@@ -141,7 +141,10 @@ def slam(
     measurements = np.concatenate([chain_steps(poses), z])
     information = np.concatenate([step_info[1:], info])
     if edges.shape[0] == 0:
-        raise InputError(f"{raw.name}: a map needs at least two scans")
+        raise InputError(
+            f"{raw.source or raw.name}: one laser scan; the front end needs at least two to "
+            "build a map: give a longer log"
+        )
     metadata = dict(raw.metadata)
     metadata["front_end"] = "hitl-slam"
     metadata.update(

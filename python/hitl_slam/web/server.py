@@ -107,6 +107,8 @@ def _front_end(
         f"ran the front end over {source} ({result.summary()}) and created the session {path} "
         f"({_describe(session)})"
     )
+
+
 _HINT = (
     "in the page: p toggles correction mode, then Ctrl-drag (colocation), Shift-drag "
     "(collinear), Shift+Alt-drag (perpendicular) or Shift+Ctrl-drag (parallel) draws; "

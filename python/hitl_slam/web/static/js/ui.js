@@ -52,7 +52,7 @@ export class Ui {
     $("st-applied").textContent = `${s.applied} correction${s.applied === 1 ? "" : "s"}`;
     const last = s.last;
     if (last && last.kind !== "reject") {
-      $("st-solve").textContent = `${last.kind} ${fmtMs(last.time_ms)}`;
+      $("st-solve").textContent = `${last.kind.replace("_", " ")} ${fmtMs(last.time_ms)}`;
       $("st-cost").textContent = `cost ${fmtCost(last.initial_cost)} \u2192 ${fmtCost(last.cost)}`;
       $("st-iter").textContent = `${last.iterations} it`;
     } else if (!last) {
