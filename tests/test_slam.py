@@ -75,9 +75,15 @@ def test_the_front_end_repairs_damaged_odometry_on_real_logs(log: str, seed: int
     assert after[0] < min(0.05, 0.45 * before[0]), (before, after)
     assert after[1] < 0.25 * before[1], (before, after)
     assert result.loop_closures.accepted.sum() > 0
-    # The map's factors: the matched chain plus the accepted loop closures, none refused.
+    # The map's factors: the matched chain plus every loop closure (the rejected ones listed
+    # as such, left out of a session's solves); the accepted map holds only the trusted ones.
     n = m.num_poses
-    assert result.map.edges.shape[0] == n - 1 + int(result.loop_closures.accepted.sum())
+    assert result.map.edges.shape[0] == n - 1 + result.loop_closures.pairs.shape[0]
+    kept = result.accepted_map()
+    assert kept.edges.shape[0] == n - 1 + int(result.loop_closures.accepted.sum())
+    assert result.map.metadata["loop_closure_auto_rejected"].tolist() == (
+        (~result.loop_closures.accepted).tolist()
+    )
     assert result.map.timestamps is not None
     assert np.all(np.isfinite(result.map.information))
 

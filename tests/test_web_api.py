@@ -129,9 +129,11 @@ def test_state_document(client: TestClient, room: Scenario) -> None:
         "inconsistency_m2",
         "history",
         "lines",
+        "loop_closures",
         "journal",
     }
     assert state["lines"] == []
+    assert state["loop_closures"] == {"count": 0, "rejected": []}
     assert state["session"] == "room.hitl"
     assert state["name"] == room.map.name
     assert (state["num_poses"], state["num_points"]) == (499, room.map.num_points)

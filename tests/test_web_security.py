@@ -181,7 +181,9 @@ ROUTES = [
     ("GET", "/api/map/poses"),
     ("GET", "/api/map/offsets"),
     ("GET", "/api/relations"),
+    ("GET", "/api/loop_closures"),
     ("POST", "/api/interpret"),
+    ("POST", "/api/loop_closures"),
     ("POST", "/api/corrections"),
     ("POST", "/api/undo"),
     ("POST", "/api/redo"),
@@ -708,6 +710,7 @@ CHANGING: list[tuple[str, dict[str, Any] | None]] = [
     ("/api/corrections", DRAWN),
     ("/api/journal/step", None),
     ("/api/interpret", DRAWN),
+    ("/api/loop_closures", {"index": 0, "rejected": True}),
 ]
 FOREIGN = [
     {"Origin": "http://evil.example"},

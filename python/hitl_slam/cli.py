@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import contextvars
 import logging
+import math
 import os
 import sys
 import threading
@@ -19,7 +20,7 @@ import time
 from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from hitl_slam import __version__
 from hitl_slam.errors import HitlSlamError, InputError, SolverError
@@ -624,7 +625,8 @@ def _cmd_slam(args: argparse.Namespace) -> int:
     else:
         from hitl_slam.io.export import export
 
-        _with_progress("writing", args.quiet, lambda: export(result.map, result.map.poses, out))
+        kept = result.accepted_map()  # a pose graph holds what the front end trusted
+        _with_progress("writing", args.quiet, lambda: export(kept, kept.poses, out))
     print(f"{result.summary()}; wrote {out}")
     return 0
 
@@ -814,7 +816,11 @@ _SERVE_EPILOG = """\
 examples:
   hitl-slam serve --demo                       # the damaged lost-poses room, ./hitl-demo/
   hitl-slam serve --demo --demo-world campus   # the 3,380-pose campus instead
-  hitl-slam serve run.clf.gz                   # creates run.hitl beside it (or reopens it)
+  hitl-slam serve run.clf.gz                   # a raw log: the front end builds the map first,
+                                               # then run.hitl beside it (reopened next time)
+  hitl-slam serve run.bag                      # a ROS bag: the same
+  hitl-slam serve corrected.log.gz --no-slam   # a log whose poses are already a map: as logged
+  hitl-slam serve lab.covars                   # a map: lab.hitl beside it
   hitl-slam serve run.hitl --journal fixes.jsonl   # step through a corrections file with l
   hitl-slam serve run.hitl --port 0 --open     # any free port; open the browser
 
@@ -824,6 +830,15 @@ mode; then a drag draws a segment, its mode from the keys held: Ctrl colocation,
 Shift+Alt perpendicular, Shift+Ctrl parallel. Two segments of one mode show what they select;
 p again applies the correction. u undoes, Shift+U redoes, v saves, ? lists every key.
 
+A raw log (CARMEN .clf/.log, also .gz/.bz2, or a ROS bag) is a robot's odometry and scans: serve
+runs the scan-matching front end over it first (progress on stderr; docs/ALGORITHM.md §F) and
+serves the map it builds, with its loop closures drawn between the poses they join (green:
+trusted, amber: down-weighted, red dashed: rejected; c shows or hides them). Click one to select
+it (n / N step through them), x rejects or reinstates it: the map re-solves at once, and the
+step is journaled and undone like a correction. Every .clf/.log is taken as raw: a log whose
+logged poses are already a good map (a corrected log, another SLAM's output) is served as logged
+with --no-slam (no loop closures then).
+
 Every correction is journaled in the session file (.hitl) before the map changes, so Ctrl-C (or
 a crash) loses nothing acknowledged; serving the same file again continues where you left off.
 Save (v) writes NAME.txt (TUM), .g2o, .pgm and .yaml beside the session file.
@@ -831,6 +846,49 @@ Save (v) writes NAME.txt (TUM), .g2o, .pgm and .yaml beside the session file.
 The server listens on 127.0.0.1 only, unless --host says otherwise; --no-token is allowed on
 loopback only.
 """
+
+
+class _ServeProgress:
+    """How far the front end is over a raw log `hitl-slam serve` was given: a tqdm bar on a
+    terminal, else a line on stderr at most every 5 s and at the end (scans done, real-time
+    factor)."""
+
+    EVERY_S = 5.0
+
+    def __init__(self) -> None:
+        self._bar: Any = None
+        self._last = -math.inf
+        self._done = False
+
+    def __call__(self, done: int, total: int, rtf: float | None) -> None:
+        speed = "" if rtf is None else f"{rtf:.1f}x real time"
+        if sys.stderr.isatty():
+            if self._bar is None:
+                from tqdm import tqdm
+
+                self._bar = tqdm(total=total, desc="front end", unit="scan", file=sys.stderr)
+            self._bar.n = done
+            if speed:
+                self._bar.set_postfix_str(speed)
+            self._bar.refresh()
+            return
+        now = time.monotonic()
+        if done < total and now - self._last < self.EVERY_S:
+            return
+        if done >= total and self._done:
+            return
+        self._last = now
+        self._done = done >= total
+        print(
+            f"hitl-slam serve: front end {done}/{total} scans" + (f", {speed}" if speed else ""),
+            file=sys.stderr,
+            flush=True,
+        )
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
@@ -845,19 +903,25 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     def announce(message: str) -> None:
         print(message, flush=True)
 
-    run_server(
-        args.target,
-        max_range=args.max_range,
-        demo=(args.demo_world or "lost-poses") if args.demo else None,
-        seed=args.seed,
-        host=args.host,
-        port=args.port,
-        token=args.token,
-        no_token=args.no_token,
-        journal=args.journal,
-        open_browser=args.open,
-        announce=announce,
-    )
+    progress = _ServeProgress()
+    try:
+        run_server(
+            args.target,
+            max_range=args.max_range,
+            front_end=not args.no_slam,
+            progress=progress,
+            demo=(args.demo_world or "lost-poses") if args.demo else None,
+            seed=args.seed,
+            host=args.host,
+            port=args.port,
+            token=args.token,
+            no_token=args.no_token,
+            journal=args.journal,
+            open_browser=args.open,
+            announce=announce,
+        )
+    finally:
+        progress.close()
     print("hitl-slam serve: stopped; every acknowledged change is in the session file", flush=True)
     return 0
 
@@ -1217,7 +1281,18 @@ def build_parser() -> argparse.ArgumentParser:
         "target",
         nargs="?",
         metavar="MAP_OR_SESSION",
-        help="a map (.covars, .clf/.log[.gz]; its session <stem>.hitl goes beside it) or a .hitl",
+        help=(
+            "a raw log (.clf/.log[.gz|.bz2], a ROS bag: the front end builds the map first), a "
+            "map (.covars), or a .hitl; the session <stem>.hitl goes beside a log or map"
+        ),
+    )
+    serve.add_argument(
+        "--no-slam",
+        action="store_true",
+        help=(
+            "serve a .clf/.log or bag with its logged poses as the map, without the front end "
+            "(for a corrected log or another SLAM's output)"
+        ),
     )
     serve.add_argument(
         "--demo", action="store_true", help="serve a generated damaged map in ./hitl-demo/"

@@ -69,6 +69,22 @@ def _forget(key: int, _ref: object) -> None:
     _SCANS.pop(key, None)
 
 
+def share_scans(source: Map, target: Map) -> None:
+    """Holds ``target``'s scans as ``source``'s (built for it if need be): for a map that shares
+    ``source``'s points and offsets (the same map with other factors), so they are not built
+    twice."""
+    if not (
+        target.points.shape == source.points.shape
+        and np.may_share_memory(target.points, source.points)
+        and np.array_equal(target.offsets, source.offsets)
+    ):
+        raise ValueError("share_scans needs maps with the same points and offsets")
+    scans = map_scans(source)
+    key = id(target)
+    with _SCANS_LOCK:
+        _SCANS[key] = (weakref.ref(target, partial(_forget, key)), scans)
+
+
 def interpret(
     map: Map,
     poses: NDArray[np.float64],

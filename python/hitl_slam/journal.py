@@ -26,6 +26,14 @@ of every correction in effect after it, in order (2K pairs of JSON numbers, whic
 exactly). An addition within schema 1: a journal without ``lines`` still opens, its lines refit
 to S_a / S_b at the checkpoint poses (:attr:`hitl_slam.session.Session.lines`).
 
+A ``loop_closure`` event (an addition within schema 2; maps built by the front end list their loop
+closures, :mod:`hitl_slam.loop_closures`) rejects or reinstates one: its payload holds ``loop``
+(the loop closure's index), ``edge`` (its row among the map's edges), ``rejected`` (true: left out
+of the solve from now on; false: reinstated), ``stats`` (as a correction's) and ``lines`` (as a
+correction's: every correction in effect, re-solved), and its ``poses`` are the re-solved
+checkpoint. It is computed first and journaled as one event, then the state changes; ``undo`` and
+``redo`` name it by its ``seq`` as ``request``, as they name a correction by its request's.
+
 Integrity (schema 2): every stored row carries ``sha256 TEXT``, the SHA-256 of its values with
 their SQLite types (:func:`row_digest`): ``map``, ``config``, each ``map_arrays`` blob and each
 event, so a byte changed on disk (which SQLite's own checks do not see) is found when the row is
@@ -146,6 +154,7 @@ class EventKind(enum.Enum):
     CORRECTION = "correction"  # the request's outcome: applied (interpretation, stats, poses)
     REJECTION = "rejection"  # the request's outcome: could not be interpreted, nothing changed
     INTERRUPTED = "interrupted"  # the request's outcome: the computation failed or was stopped
+    LOOP_CLOSURE = "loop_closure"  # a loop closure rejected or reinstated (result and poses)
     UNDO = "undo"
     REDO = "redo"
     SAVE = "save"  # the current map was exported to a file

@@ -177,11 +177,50 @@ def checked_map(map: Map, config: Config = DEFAULT) -> Map:
     hit = _CACHE.get(key)
     if hit is not None and hit[0]() is map and hit[1] == config.odometry_check:
         return hit[2]
-    check = check_odometry(map, config)
-    out = dataclasses.replace(map, measurements=check.measurements, information=check.information)
+    out = _derived_check(map, config)
+    if out is None:
+        check = check_odometry(map, config)
+        out = dataclasses.replace(
+            map, measurements=check.measurements, information=check.information
+        )
     _CACHE[key] = (weakref.ref(map, partial(_forget, key)), config.odometry_check, out)
     return out
 
 
 def _forget(key: int, _ref: object) -> None:
     _CACHE.pop(key, None)
+
+
+def share_check(full: Map, derived: Map, keep: NDArray[np.bool_]) -> None:
+    """Records that ``derived`` is ``full`` with only the edges ``keep`` marks (the chain among
+    them), so that checking it does not match its scans again: the check reads and changes the
+    chain's edges only, so ``derived``'s checked edges are ``full``'s (computed once, for any
+    number of derived maps), less the dropped rows."""
+    key = id(derived)
+    _DERIVED[key] = (
+        weakref.ref(derived, partial(_forget_derived, key)),
+        weakref.ref(full),
+        np.asarray(keep, dtype=bool),
+    )
+
+
+_DERIVED: dict[int, tuple[weakref.ref[Map], weakref.ref[Map], NDArray[np.bool_]]] = {}
+
+
+def _forget_derived(key: int, _ref: object) -> None:
+    _DERIVED.pop(key, None)
+
+
+def _derived_check(map: Map, config: Config) -> Map | None:
+    """:func:`checked_map` of a map registered by :func:`share_check`, from its full map's."""
+    hit = _DERIVED.get(id(map))
+    if hit is None or hit[0]() is not map:
+        return None
+    full = hit[1]()
+    if full is None:
+        return None
+    checked = checked_map(full, config)
+    keep = hit[2]
+    return dataclasses.replace(
+        map, measurements=checked.measurements[keep], information=checked.information[keep]
+    )

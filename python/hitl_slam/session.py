@@ -1,5 +1,6 @@
-"""An editing session on a map: corrections one at a time, undo and redo of any depth, save; every
-event journaled (:mod:`hitl_slam.journal`) before the map in memory changes, so reopening the file
+"""An editing session on a map: corrections one at a time, loop closures rejected or reinstated
+(on a map the front end built), undo and redo of any depth across both, save; every event
+journaled (:mod:`hitl_slam.journal`) before the map in memory changes, so reopening the file
 rebuilds the same state bit for bit from the journal's pose checkpoints (docs/ALGORITHM.md §5).
 """
 
@@ -26,6 +27,13 @@ from hitl_slam.errors import CorrectionRejected, InputError, SolverError
 from hitl_slam.geometry import fit_line
 from hitl_slam.io.atomic import atomic_outputs
 from hitl_slam.journal import DamagedSession, Event, EventKind, Journal
+from hitl_slam.loop_closures import (
+    AUTO_REJECTED,
+    EDGES,
+    LoopClosure,
+    LoopClosureTable,
+    effective_map,
+)
 from hitl_slam.map import Map
 
 __all__ = [
@@ -36,6 +44,7 @@ __all__ = [
     "CorrectionStats",
     "EntryStatus",
     "HistoryEntry",
+    "LoopClosureStep",
     "Session",
     "StepRefused",
     "StepResult",
@@ -176,6 +185,39 @@ class _Entry:
         )
 
 
+@dataclass(frozen=True, eq=False)
+class LoopClosureStep:
+    """One loop closure rejected (``rejected``) or reinstated, as a step of the session: on the
+    same undo/redo stack as the corrections."""
+
+    seq: int  # journal sequence number of its event
+    time: float  # Unix time
+    loop: int  # the loop closure's index (:attr:`Session.loop_closures`)
+    rejected: bool  # True: left out of the solve by this step; False: reinstated
+    status: EntryStatus  # APPLIED, UNDONE or DISCARDED
+    stats: CorrectionStats  # the re-solve with every correction in effect
+
+
+@dataclass(eq=False)
+class _Toggle:
+    seq: int
+    time: float
+    loop: int
+    rejected: bool
+    stats: CorrectionStats
+    status: EntryStatus
+    poses: NDArray[np.float64] | None  # checkpoint, while applied or redoable
+    lines: NDArray[np.float64] | None  # (2K, 2) the re-solved lines of the corrections in effect
+
+    def snapshot(self) -> LoopClosureStep:
+        return LoopClosureStep(
+            self.seq, self.time, self.loop, self.rejected, self.status, self.stats
+        )
+
+
+_Step = _Entry | _Toggle
+
+
 def _frozen(poses: NDArray[np.float64]) -> NDArray[np.float64]:
     poses.flags.writeable = False
     return poses
@@ -184,9 +226,15 @@ def _frozen(poses: NDArray[np.float64]) -> NDArray[np.float64]:
 def _lines_from_json(data: Any, count: int) -> NDArray[np.float64]:
     """A journal's ``lines``: ``count`` finite ``[phi, rho]`` pairs (ValueError otherwise)."""
     lines = np.array(data, dtype=np.float64)
+    if count == 0 and lines.size == 0:
+        lines = lines.reshape(0, 2)
     if lines.shape != (count, 2) or not np.isfinite(lines).all():
         raise ValueError(f"lines must be {count} finite [phi, rho] pairs, got shape {lines.shape}")
     return _frozen(lines)
+
+
+def _loop_state(rejected: bool) -> str:
+    return "rejected" if rejected else "in the solve"
 
 
 def _drawn_from_json(data: Any) -> DrawnCorrection:
@@ -198,13 +246,32 @@ def _drawn_from_json(data: Any) -> DrawnCorrection:
 class _State:
     """The undo/redo state machine; fed the same events live and when a journal is replayed."""
 
-    def __init__(self, initial: NDArray[np.float64]) -> None:
+    def __init__(self, initial: NDArray[np.float64], loops: LoopClosureTable | None = None) -> None:
         self.initial = _frozen(np.array(initial, dtype=np.float64, order="C"))
+        self.loops = loops
         self.entries: list[_Entry] = []
         self.by_seq: dict[int, _Entry] = {}
-        self.applied: list[_Entry] = []
-        self.redo: list[_Entry] = []
+        self.applied: list[_Step] = []
+        self.redo: list[_Step] = []
+        self.toggles: list[_Toggle] = []
         self.pending: _Entry | None = None
+
+    @classmethod
+    def for_map(cls, map: Map) -> _State:
+        """The state of a new session on ``map`` (its loop closures, if any, from its metadata)."""
+        return cls(map.poses, LoopClosureTable.of(map))
+
+    def rejected(self) -> frozenset[int]:
+        """The loop closures left out of the solve: the front end's rejections, then every
+        applied toggle in order."""
+        out = set() if self.loops is None else set(self.loops.auto_rejected_set)
+        for step in self.applied:
+            if isinstance(step, _Toggle):
+                if step.rejected:
+                    out.add(step.loop)
+                else:
+                    out.discard(step.loop)
+        return frozenset(out)
 
     @property
     def poses(self) -> NDArray[np.float64]:
@@ -215,7 +282,48 @@ class _State:
         return top
 
     def active(self) -> list[Interpretation]:
-        return [e.interpretation for e in self.applied if e.interpretation is not None]
+        return [
+            e.interpretation
+            for e in self.applied
+            if isinstance(e, _Entry) and e.interpretation is not None
+        ]
+
+    def _discard_redo(self) -> None:
+        for dropped in self.redo:
+            dropped.status = EntryStatus.DISCARDED
+            dropped.poses = None
+        self.redo.clear()
+
+    def _toggle(self, event: Event) -> None:
+        """A ``loop_closure`` event: checked against the map's loop closures and the state."""
+        payload = event.payload
+        loop, rejected = payload.get("loop"), payload.get("rejected")
+        count = 0 if self.loops is None else self.loops.count
+        if not isinstance(loop, int) or isinstance(loop, bool) or not 0 <= loop < count:
+            raise ValueError(f"loop closure {loop!r} is not one of the map's {count}")
+        if not isinstance(rejected, bool):
+            raise ValueError("its 'rejected' is not true or false")
+        assert self.loops is not None
+        if "edge" in payload and payload["edge"] != int(self.loops.edges[loop]):
+            raise ValueError(f"loop closure {loop} is not edge {payload['edge']!r} of the map")
+        if (loop in self.rejected()) == rejected:
+            raise ValueError(f"loop closure {loop} is already {_loop_state(rejected)}")
+        poses = event.poses
+        if poses is None or poses.dtype != np.float64 or poses.shape != self.initial.shape:
+            raise ValueError("a loop closure step without a valid pose checkpoint")
+        toggle = _Toggle(
+            seq=event.seq,
+            time=event.time,
+            loop=loop,
+            rejected=rejected,
+            stats=CorrectionStats.from_json(payload["stats"]),
+            status=EntryStatus.APPLIED,
+            poses=_frozen(np.ascontiguousarray(poses)),
+            lines=_lines_from_json(payload["lines"], 2 * len(self.active())),
+        )
+        self._discard_redo()
+        self.applied.append(toggle)
+        self.toggles.append(toggle)
 
     def close_pending(self, reason: str) -> None:
         if self.pending is not None:
@@ -230,9 +338,9 @@ class _State:
         self.pending = None
         return entry
 
-    def _stacked(self, event: Event, stack: list[_Entry]) -> _Entry:
+    def _stacked(self, event: Event, stack: list[_Step]) -> _Step:
         if not stack or stack[-1].seq != event.payload.get("request"):
-            raise ValueError(f"{event.kind.value} of a correction that is not the next one")
+            raise ValueError(f"{event.kind.value} of a step that is not the next one")
         return stack.pop()
 
     def apply(self, event: Event) -> None:
@@ -254,29 +362,30 @@ class _State:
             entry.interpretation = Interpretation.from_json(event.payload["interpretation"])
             entry.stats = CorrectionStats.from_json(event.payload["stats"])
             if "lines" in event.payload:  # absent in journals written before lines were kept
-                entry.lines = _lines_from_json(event.payload["lines"], 2 * (len(self.applied) + 1))
+                count = 2 * (len(self.active()) + 1)
+                entry.lines = _lines_from_json(event.payload["lines"], count)
             entry.poses = _frozen(np.ascontiguousarray(poses))
             entry.status = EntryStatus.APPLIED
-            for dropped in self.redo:
-                dropped.status = EntryStatus.DISCARDED
-                dropped.poses = None
-            self.redo.clear()
+            self._discard_redo()
             self.applied.append(entry)
         elif kind in (EventKind.REJECTION, EventKind.INTERRUPTED):
             entry = self._outcome_of(event)
             rejected = kind is EventKind.REJECTION
             entry.status = EntryStatus.REJECTED if rejected else EntryStatus.INTERRUPTED
             entry.reason = str(event.payload.get("reason", ""))
+        elif kind is EventKind.LOOP_CLOSURE:
+            self.close_pending(_DIED)
+            self._toggle(event)
         elif kind is EventKind.UNDO:
             self.close_pending(_DIED)
-            entry = self._stacked(event, self.applied)
-            entry.status = EntryStatus.UNDONE
-            self.redo.append(entry)
+            step = self._stacked(event, self.applied)
+            step.status = EntryStatus.UNDONE
+            self.redo.append(step)
         elif kind is EventKind.REDO:
             self.close_pending(_DIED)
-            entry = self._stacked(event, self.redo)
-            entry.status = EntryStatus.APPLIED
-            self.applied.append(entry)
+            step = self._stacked(event, self.redo)
+            step.status = EntryStatus.APPLIED
+            self.applied.append(step)
         else:  # pragma: no cover - EventKind is closed
             raise ValueError(f"unknown event kind {kind}")
 
@@ -291,8 +400,8 @@ class _State:
         return None
 
     @classmethod
-    def replay(cls, initial: NDArray[np.float64], events: Sequence[Event], where: str) -> _State:
-        state = cls(initial)
+    def replay(cls, map: Map, events: Sequence[Event], where: str) -> _State:
+        state = cls.for_map(map)
         for event in events:
             problem = state.feed(event)
             if problem is not None:
@@ -312,11 +421,11 @@ def _recovery_path(path: str) -> str:
     return candidate
 
 
-def _intact(journal: Journal, initial: NDArray[np.float64]) -> tuple[_State, int, str | None]:
+def _intact(journal: Journal, map: Map) -> tuple[_State, int, str | None]:
     """Replay the journal's events up to the first that cannot be used (damaged on disk, or
     not a valid step): the state they give, how many there are, and what is wrong with the next
     one (None: every event is intact). Never raises for damaged events."""
-    state = _State(initial)
+    state = _State.for_map(map)
     good: list[Event] = []
     for item in journal.intact_events():
         if isinstance(item, DamagedSession):
@@ -324,7 +433,7 @@ def _intact(journal: Journal, initial: NDArray[np.float64]) -> tuple[_State, int
         problem = state.feed(item)
         if problem is not None:
             # The failed event may have changed the state half-way: replay the good ones again.
-            state = _State(initial)
+            state = _State.for_map(map)
             for event in good:
                 state.feed(event)
             return state, len(good), problem
@@ -337,6 +446,9 @@ def _describe(state: _State) -> str:
     if not applied:
         return "the input map (no correction applied)"
     top = state.applied[-1]
+    if isinstance(top, _Toggle):
+        verb = "rejecting" if top.rejected else "reinstating"
+        return f"the map after {verb} loop closure {top.loop} ({applied} steps applied)"
     return f"the map after correction {top.index + 1} of the history ({applied} applied)"
 
 
@@ -352,7 +464,7 @@ def _damage_report(path: str, what: str, journal: Journal, map: Map | None) -> D
             "damaged too, so no checkpoint in it can be trusted; restore the file from a copy, "
             "or start a new session from the input map",
         )
-    state, count, _ = _intact(journal, map.poses)
+    state, count, _ = _intact(journal, map)
     if count == 0:
         return DamagedSession(
             path,
@@ -447,7 +559,7 @@ class StepResult:
 
     action: str
     outcome: CorrectionOutcome | None
-    entry: HistoryEntry
+    entry: HistoryEntry | LoopClosureStep
     time_s: float
 
 
@@ -512,11 +624,18 @@ class Session:
         """Start a session on ``map`` journaled at ``path`` (a new file; ``None``: in memory).
 
         ``applier`` computes a correction (default :func:`hitl_slam.pipeline.apply_correction`).
+        A map the front end built lists its loop closures in its metadata; the ones it rejected
+        start rejected (:attr:`loop_closures`).
+
+        Raises:
+            InputError: ``path`` exists or cannot be written, or the map's loop closures are
+                malformed (nothing is written then).
         """
+        LoopClosureTable.of(map)  # malformed loop closures are refused before anything is written
         journal = Journal.create(path, map, config)
         try:
             stored = journal.read_map()
-            state = _State(stored.poses)
+            state = _State.for_map(stored)
             from hitl_slam import __version__
 
             journal.append(
@@ -561,7 +680,7 @@ class Session:
             stored = journal.read_map()
             config = journal.read_config()
             try:
-                state = _State.replay(stored.poses, journal.events(), where)
+                state = _State.replay(stored, journal.events(), where)
             except DamagedSession as damage:
                 raise _damage_report(where, damage.what, journal, stored) from None
             return cls(journal, stored, config, state, applier)
@@ -590,7 +709,7 @@ class Session:
         with Journal.open(where, check=False) as damaged:
             stored = damaged.read_map()
             damaged.read_config()
-            _, count, _ = _intact(damaged, stored.poses)
+            _, count, _ = _intact(damaged, stored)
         Journal.salvage(where, destination, limit=count)
         return cls.open(destination, applier)
 
@@ -617,8 +736,54 @@ class Session:
             return self._state.poses
 
     def current_map(self) -> Map:
-        """The input map with the current poses (observation arrays shared with the input)."""
-        return dataclasses.replace(self._map, poses=self.poses.copy())
+        """The input map with the current poses (observation arrays shared with the input),
+        without the rejected loop closures: the map as it stands. Its remaining loop closures
+        (if any) are listed in its metadata, none marked as rejected by the front end, so a
+        session started from it starts where this one is."""
+        with self._guard:
+            poses = self._state.poses.copy()
+            target = effective_map(self._map, self._state.rejected())
+        metadata = target.metadata
+        if self._state.loops is not None:
+            metadata = dict(metadata)
+            metadata[AUTO_REJECTED] = np.zeros(np.shape(metadata[EDGES]), dtype=bool)
+        return dataclasses.replace(target, poses=poses, metadata=metadata)
+
+    def solved_map(self) -> Map:
+        """The map the session's corrections solve over now: the input map without the rejected
+        loop closures (the input map itself when none is rejected), with the input poses."""
+        with self._guard:
+            return effective_map(self._map, self._state.rejected())
+
+    @property
+    def loop_closures(self) -> list[LoopClosure]:
+        """Every loop closure of the map (a map built by the front end; empty for any other),
+        each with its pair of poses, the front end's trust in it (weight, 0..1), its score, and
+        whether it is rejected now (left out of every solve)."""
+        with self._guard:
+            loops = self._state.loops
+            return [] if loops is None else loops.items(self._state.rejected())
+
+    @property
+    def rejected_loop_closures(self) -> frozenset[int]:
+        """The indices of the loop closures left out of the solve now."""
+        with self._guard:
+            return self._state.rejected()
+
+    @property
+    def loop_closure_steps(self) -> list[LoopClosureStep]:
+        """Every loop closure rejected or reinstated in this session, in order, with its
+        status (applied, undone, or discarded by a later step)."""
+        with self._guard:
+            return [t.snapshot() for t in self._state.toggles]
+
+    @property
+    def last_stats(self) -> CorrectionStats | None:
+        """The numbers of the step in effect (the top of the undo stack: a correction or a loop
+        closure step); None for the input map."""
+        with self._guard:
+            top = self._state.applied[-1] if self._state.applied else None
+            return None if top is None else top.stats
 
     @property
     def history(self) -> list[HistoryEntry]:
@@ -652,7 +817,7 @@ class Session:
     def corrections(self) -> list[DrawnCorrection]:
         """The raw input of the applied corrections, in order."""
         with self._guard:
-            return [e.drawn for e in self._state.applied]
+            return [e.drawn for e in self._state.applied if isinstance(e, _Entry)]
 
     @property
     def can_undo(self) -> bool:
@@ -692,9 +857,10 @@ class Session:
                 assert pending is not None
                 before = self._state.poses
                 active = self._state.active()
+                target = effective_map(self._map, self._state.rejected())
             seq = pending.seq
             try:
-                outcome = apply(self._map, before, drawn, active, self._config)
+                outcome = apply(target, before, drawn, active, self._config)
                 after = _checked_poses(outcome.poses, before.shape)
                 lines = _checked_lines(outcome, 2 * (len(active) + 1))
                 interpretation = outcome.interpretation.to_json(arrays=True)
@@ -724,16 +890,85 @@ class Session:
                 raise
             return outcome
 
-    def undo(self) -> HistoryEntry:
-        """Undo the last applied correction: the map returns exactly to what it was before it.
+    def set_loop_closure(self, loop: int, rejected: bool) -> LoopClosureStep:
+        """Reject loop closure ``loop`` (``rejected=True``: it leaves the solve) or reinstate it,
+        and re-solve the map: every correction in effect jointly, from the current poses, over
+        the map without the loop closures rejected then (docs/ALGORITHM.md §F.6). The result is
+        journaled (with the new poses as a checkpoint) and only then does the map change. A step
+        on the undo/redo stack like a correction: undo returns to the poses before it exactly.
+
+        Raises:
+            InputError: the map has no loop closures, or no loop closure ``loop``.
+            StepRefused: it is already rejected (or already in the solve); nothing changed.
+            SolverError: the solve failed; nothing changed and nothing was journaled.
+        """
+        from hitl_slam.pipeline import solve_all
+
+        with self._operation:
+            self._check_open()
+            with self._guard:
+                loops = self._state.loops
+                current = self._state.rejected()
+                before = self._state.poses
+                active = self._state.active()
+            if loops is None or loops.count == 0:
+                raise InputError(
+                    "this map has no loop closures to reject or reinstate; only maps the front "
+                    "end built (`hitl-slam slam`, or `hitl-slam serve` on a raw log) have them"
+                )
+            if isinstance(loop, bool) or not isinstance(loop, int | np.integer):
+                raise InputError(f"a loop closure is given by its index, got {loop!r}")
+            loop = int(loop)
+            if not 0 <= loop < loops.count:
+                raise InputError(
+                    f"no loop closure {loop}: the map has {loops.count} (0 to {loops.count - 1})"
+                )
+            rejected = bool(rejected)
+            if (loop in current) == rejected:
+                raise StepRefused(f"loop closure {loop} is already {_loop_state(rejected)}")
+            wanted = current | {loop} if rejected else current - {loop}
+            target = effective_map(self._map, wanted)
+            t0 = time.perf_counter()
+            poses, lines, report = solve_all(target, active, self._config, start=before)
+            elapsed = time.perf_counter() - t0
+            after = _checked_poses(poses, before.shape)
+            count = 2 * len(active)
+            solved = np.array(lines, dtype=np.float64).reshape(-1, 2)
+            if solved.shape != (count, 2) or not np.isfinite(solved).all():
+                raise SolverError("the re-solve returned malformed lines; the map was not changed")
+            moved, largest = moved_poses(before, after)
+            stats = CorrectionStats(
+                iterations=int(report.iterations),
+                initial_chi2=float(report.initial_chi2),
+                final_chi2=float(report.final_chi2),
+                time_s=elapsed,
+                poses_moved=moved,
+                max_move_m=largest,
+            )
+            payload = {
+                "loop": loop,
+                "edge": int(loops.edges[loop]),
+                "rejected": rejected,
+                "stats": stats.to_json(),
+                "lines": solved.tolist(),
+            }
+            self._record(EventKind.LOOP_CLOSURE, payload, after)
+            with self._guard:
+                top = self._state.applied[-1]
+                assert isinstance(top, _Toggle)
+                return top.snapshot()
+
+    def undo(self) -> HistoryEntry | LoopClosureStep:
+        """Undo the last applied step (a correction, or a loop closure rejected or reinstated):
+        the map returns exactly to what it was before it.
 
         Raises:
             StepRefused: nothing to undo (an InputError).
         """
         return self._step(EventKind.UNDO)
 
-    def redo(self) -> HistoryEntry:
-        """Redo the last undone correction (its stored result; nothing is recomputed).
+    def redo(self) -> HistoryEntry | LoopClosureStep:
+        """Redo the last undone step (its stored result; nothing is recomputed).
 
         Raises:
             StepRefused: nothing to redo (an InputError).
@@ -753,7 +988,7 @@ class Session:
         t0 = time.perf_counter()
         if isinstance(step, Apply):
             outcome: CorrectionOutcome | None = self.apply(step.drawn)
-            entry = self.history[-1]
+            entry: HistoryEntry | LoopClosureStep = self.history[-1]
             action = "apply"
         else:
             outcome = None
@@ -761,7 +996,7 @@ class Session:
             entry = self.undo() if action == "undo" else self.redo()
         return StepResult(action, outcome, entry, time.perf_counter() - t0)
 
-    def _step(self, kind: EventKind) -> HistoryEntry:
+    def _step(self, kind: EventKind) -> HistoryEntry | LoopClosureStep:
         with self._operation:
             self._check_open()
             with self._guard:
@@ -794,7 +1029,7 @@ class Session:
             # The files are prepared, the event journaled, and only then are they renamed into
             # place: a save the journal cannot record writes nothing (issue 13, finding 6).
             with atomic_outputs():
-                export(self._map, self.poses.copy(), path)
+                export(self.solved_map(), self.poses.copy(), path)
                 self._record(
                     EventKind.SAVE, {"path": target, "format": os.path.splitext(target)[1].lower()}
                 )
@@ -816,11 +1051,44 @@ class Session:
             self._journal.backup_to(path)
 
     def replay(self, applier: Applier | None = None) -> tuple[NDArray[np.float64], list[Any]]:
-        """Recompute the applied corrections from the input poses, from scratch, to verify the
-        stored result. Changes nothing. Returns the final poses and each step's outcome; with the
-        same build the poses equal :attr:`poses` bit for bit."""
-        apply = applier or self._applier
-        return apply_in_order(self._map, self.corrections, self._config, apply)
+        """Recompute the applied steps from the input poses, from scratch, to verify the stored
+        result: each correction on the map as it stood, each loop closure step as its re-solve.
+        Changes nothing. Returns the final poses and each step's outcome (a loop closure step's:
+        its SolveReport); with the same build the poses equal :attr:`poses` bit for bit.
+
+        Raises:
+            CorrectionRejected: a correction cannot be interpreted (its index is in the message).
+        """
+        from hitl_slam.pipeline import solve_all
+
+        apply = applier or self._applier or _default_applier()
+        with self._guard:
+            steps = list(self._state.applied)
+            loops = self._state.loops
+        rejected = set() if loops is None else set(loops.auto_rejected_set)
+        poses = np.array(self._map.poses, dtype=np.float64, order="C")
+        active: list[Interpretation] = []
+        outcomes: list[Any] = []
+        for k, step in enumerate(steps):
+            if isinstance(step, _Toggle):
+                if step.rejected:
+                    rejected.add(step.loop)
+                else:
+                    rejected.discard(step.loop)
+            target = effective_map(self._map, frozenset(rejected))
+            if isinstance(step, _Toggle):
+                solved, _, report = solve_all(target, active, self._config, start=poses)
+                poses = _checked_poses(solved, poses.shape)
+                outcomes.append(report)
+                continue
+            try:
+                outcome = apply(target, poses, step.drawn, list(active), self._config)
+            except CorrectionRejected as exc:
+                raise CorrectionRejected(f"step {k + 1}: {exc}") from exc
+            poses = _checked_poses(outcome.poses, poses.shape)
+            active.append(outcome.interpretation)
+            outcomes.append(outcome)
+        return poses, outcomes
 
     # -- plumbing ---------------------------------------------------------------------------
 

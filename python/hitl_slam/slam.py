@@ -1,8 +1,11 @@
 """From a raw laser log to a consistent map: the scan-matching front end of the Rust core
 (``rust/src/frontend/slam.rs``; docs/ALGORITHM.md §F) run over a :class:`~hitl_slam.map.Map`
 whose poses are the log's odometry, giving a map whose poses are the front end's and whose
-factors are what it measured: each step between consecutive scans (from their matches) and the
-loop closures the final solve kept. A person can then repair what the front end got wrong.
+factors are what it measured: each step between consecutive scans (from their matches) and every
+loop closure it found. The map's metadata lists the loop closures (:mod:`hitl_slam.loop_closures`)
+with the trust the final solve gave each; the ones it rejected (weight below 0.5) are left out of
+every solve of a session until a person reinstates them. A person can then repair what the front
+end got wrong, reject a loop closure it trusted, or reinstate one it rejected.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from numpy.typing import NDArray
 from hitl_slam import _core
 from hitl_slam.errors import InputError
 from hitl_slam.geometry import chain_steps
+from hitl_slam.loop_closures import effective_map, loop_closure_metadata
 from hitl_slam.map import InformationSource, Map
 
 __all__ = ["LoopClosures", "SlamResult", "slam"]
@@ -48,8 +52,10 @@ class LoopClosures:
 
 @dataclass(frozen=True)
 class SlamResult:
-    """The map the front end built (poses per scan; factors: the matched steps and the accepted
-    loop closures), its keyframes (scan indices), every loop closure, and the timing."""
+    """The map the front end built (poses per scan; factors: the matched steps and every loop
+    closure, listed in its metadata, see :mod:`hitl_slam.loop_closures`), its keyframes (scan
+    indices), every loop closure, and the timing. :meth:`accepted_map` is the map without the
+    rejected loop closures: the graph the front end's poses solve."""
 
     map: Map
     keyframes: NDArray[np.int64]
@@ -57,6 +63,12 @@ class SlamResult:
     submaps: int
     time_s: float
     duration_s: float | None  # [s] of data in the log (timestamps), if known
+
+    def accepted_map(self) -> Map:
+        """:attr:`map` without the loop closures the front end rejected (its edges: the matched
+        steps and the accepted loop closures), e.g. to export as a pose graph."""
+        rejected = np.flatnonzero(~self.loop_closures.accepted)
+        return effective_map(self.map, frozenset(int(k) for k in rejected))
 
     @property
     def real_time_factor(self) -> float | None:
@@ -124,13 +136,25 @@ def slam(
     )
     elapsed = time.perf_counter() - t0
     loops = LoopClosures(pairs, z, info, scores, weights)
-    keep = loops.accepted
     chain = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1).astype(np.int64)
-    edges = np.concatenate([chain, pairs[keep]]).astype(np.int64)
-    measurements = np.concatenate([chain_steps(poses), z[keep]])
-    information = np.concatenate([step_info[1:], info[keep]])
+    edges = np.concatenate([chain, pairs]).astype(np.int64)
+    measurements = np.concatenate([chain_steps(poses), z])
+    information = np.concatenate([step_info[1:], info])
     if edges.shape[0] == 0:
-        raise InputError(f"{raw.name}: a map needs at least two scans")
+        raise InputError(
+            f"{raw.source or raw.name}: one laser scan; the front end needs at least two to "
+            "build a map: give a longer log"
+        )
+    metadata = dict(raw.metadata)
+    metadata["front_end"] = "hitl-slam"
+    metadata.update(
+        loop_closure_metadata(
+            np.arange(n - 1, n - 1 + pairs.shape[0], dtype=np.int64),
+            np.clip(weights, 0.0, 1.0),
+            scores,
+            ~loops.accepted,
+        )
+    )
     built = Map(
         poses=poses,
         points=raw.points,
@@ -144,7 +168,7 @@ def slam(
         anchor=0,
         name=f"{raw.name} (hitl-slam front end)",
         source=raw.source,
-        metadata=dict(raw.metadata),
+        metadata=metadata,
     )
     duration = None
     if raw.timestamps is not None and n > 1:

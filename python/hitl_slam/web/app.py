@@ -202,6 +202,15 @@ def create_app(
     async def corrections(drawn: schemas.Drawn) -> dict[str, Any]:
         return await run_in_threadpool(host.apply, drawn.to_correction())
 
+    @app.get("/api/loop_closures", response_model=schemas.LoopClosures)
+    async def loop_closures() -> dict[str, Any]:
+        # Built once with the host: they never change, so the page fetches them once.
+        return host.loop_closures()
+
+    @app.post("/api/loop_closures", response_model=schemas.State)
+    async def set_loop_closure(request: schemas.LoopClosureRequest) -> dict[str, Any]:
+        return await run_in_threadpool(host.set_loop_closure, request.index, request.rejected)
+
     @app.post("/api/undo", response_model=schemas.State)
     async def undo() -> dict[str, Any]:
         return await run_in_threadpool(host.undo)

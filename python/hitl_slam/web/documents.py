@@ -11,10 +11,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.corrections import Interpretation
+from hitl_slam.loop_closures import LoopClosure
 from hitl_slam.map import Map
 from hitl_slam.session import HistoryEntry
 
-__all__ = ["history_item", "last_change", "preview", "segment_json"]
+__all__ = ["history_item", "last_change", "loop_closures", "preview", "segment_json"]
 
 
 def segment_json(segment: Any) -> list[list[float]]:
@@ -62,6 +63,18 @@ def history_item(entry: HistoryEntry) -> dict[str, Any]:
         "drawn": entry.drawn.to_json(),
         "x_a": [] if h is None else _indices_json(h.x_a),
         "x_b": [] if h is None else _indices_json(h.x_b),
+    }
+
+
+def loop_closures(items: list[LoopClosure]) -> dict[str, Any]:
+    """The LoopClosures document: per loop closure (in index order) its pair of poses, the front
+    end's weight and score, and whether the front end rejected it; as columns, which the page
+    reads once."""
+    return {
+        "pairs": [list(c.pair) for c in items],
+        "weight": [c.weight for c in items],
+        "score": [c.score for c in items],
+        "auto_rejected": [c.auto_rejected for c in items],
     }
 
 

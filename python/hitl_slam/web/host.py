@@ -67,6 +67,7 @@ class Snapshot:
     active: tuple[Interpretation, ...]
     can_undo: bool
     can_redo: bool
+    rejected_loops: tuple[int, ...]  # the loop closures left out of the solve, sorted
     last: dict[str, Any] | None
     inconsistency_m2: float | None
     journal_next: int
@@ -102,6 +103,8 @@ class SessionHost:
         self._session = session
         self._map = session.input_map
         self._drawing = MapDrawing(self._map)
+        self._loops = documents.loop_closures(session.loop_closures)
+        self._loop_count = len(self._loops["pairs"])
         self._steps = tuple(journal)
         self._journal_source = journal_source
         self.poll_timeout = float(poll_timeout)
@@ -168,6 +171,10 @@ class SessionHost:
             "inconsistency_m2": snap.inconsistency_m2,
             "history": [documents.history_item(e) for e in snap.history],
             "lines": list(snap.lines),
+            "loop_closures": {
+                "count": self._loop_count,
+                "rejected": list(snap.rejected_loops),
+            },
             "journal": {
                 "loaded": len(self._steps),
                 "next": snap.journal_next,
@@ -216,6 +223,12 @@ class SessionHost:
         snap = self.snapshot
         return snap.version, snap.poses_f32
 
+    def loop_closures(self) -> dict[str, Any]:
+        """The map's loop closures, which never change (the page fetches them once): each one's
+        pair of poses, the front end's trust in it (weight, 0..1), its score and whether the front
+        end rejected it. Which are rejected now is in the state (``loop_closures.rejected``)."""
+        return self._loops
+
     def offsets(self) -> bytes:
         """int32 LE (N + 1,): pose i's points are points[offsets[i]:offsets[i + 1]]."""
         return self._drawing.offsets_i32
@@ -248,8 +261,34 @@ class SessionHost:
             self._check_open()
             return self._run(Apply(drawn), "")
 
+    def set_loop_closure(self, index: int, rejected: bool) -> dict[str, Any]:
+        """Reject loop closure ``index`` or reinstate it (serialized with every other change),
+        re-solving the map; the new State (its ``last`` says what the re-solve cost).
+
+        Raises:
+            NothingToDo: it is already rejected, or already in the solve.
+            InputError: the map has no loop closure ``index``.
+            SolverError: the re-solve failed; nothing changed.
+        """
+        with self._operation:
+            self._check_open()
+            t0 = time.perf_counter()
+            try:
+                step = self._session.set_loop_closure(index, rejected)
+            except StepRefused as exc:
+                raise NothingToDo(str(exc)) from None
+            stats = step.stats
+            last = documents.last_change(
+                "loop_closure",
+                1e3 * (time.perf_counter() - t0),
+                cost=stats.final_chi2,
+                initial_cost=stats.initial_chi2,
+                iterations=stats.iterations,
+            )
+            return self.state(self._publish(last))
+
     def undo(self) -> dict[str, Any]:
-        """Undo the last applied correction; the new State.
+        """Undo the last applied step (a correction or a loop closure step); the new State.
 
         Raises:
             NothingToDo: nothing to undo.
@@ -257,7 +296,7 @@ class SessionHost:
         return self._step(Undo())
 
     def redo(self) -> dict[str, Any]:
-        """Redo the last undone correction; the new State.
+        """Redo the last undone step; the new State.
 
         Raises:
             NothingToDo: nothing to redo.
@@ -443,9 +482,7 @@ class SessionHost:
     def _step_change(self, action: str, time_s: float) -> dict[str, Any]:
         """The ``last`` of an undo or redo: the cost of the map now in effect, as its last solve
         left it (0 for the input map, which no correction solved)."""
-        history = self._session.history
-        top = next((e for e in reversed(history) if e.status.value == "applied"), None)
-        stats = None if top is None else top.stats
+        stats = self._session.last_stats
         cost = 0.0 if stats is None else stats.final_chi2
         return documents.last_change(action, 1e3 * time_s, cost=cost, initial_cost=cost)
 
@@ -481,6 +518,7 @@ class SessionHost:
             active=tuple(session.active),
             can_undo=session.can_undo,
             can_redo=session.can_redo,
+            rejected_loops=tuple(sorted(session.rejected_loop_closures)),
             last=last,
             inconsistency_m2=known,
             journal_next=journal_next,

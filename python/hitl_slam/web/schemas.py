@@ -23,6 +23,9 @@ __all__ = [
     "HistoryItem",
     "JournalInfo",
     "Last",
+    "LoopClosureRequest",
+    "LoopClosureState",
+    "LoopClosures",
     "Preview",
     "PreviewAccepted",
     "PreviewRejected",
@@ -80,6 +83,13 @@ class Drawn(_Request):
         return DrawnCorrection.make(self.a, self.b, self.mode, self.sigma_h)
 
 
+class LoopClosureRequest(_Request):
+    """Reject loop closure ``index`` (``rejected: true``) or reinstate it (``false``)."""
+
+    index: Annotated[int, Strict(), Field(ge=0)]
+    rejected: Annotated[bool, Strict()]
+
+
 class SaveRequest(_Request):
     name: str | None = None
 
@@ -97,7 +107,7 @@ class _Response(BaseModel):
 
 
 class Last(_Response):
-    kind: Literal["apply", "undo", "redo", "reject"]
+    kind: Literal["apply", "undo", "redo", "reject", "loop_closure"]
     time_ms: float
     cost: float
     initial_cost: float
@@ -138,6 +148,22 @@ class CorrectionLines(_Response):
     b: SolvedLine
 
 
+class LoopClosureState(_Response):
+    """How many loop closures the map has and which are rejected now (left out of the solve)."""
+
+    count: int
+    rejected: list[int]
+
+
+class LoopClosures(_Response):
+    """The map's loop closures, column by column (index order); they never change."""
+
+    pairs: list[tuple[int, int]]  # the two poses each joins
+    weight: list[float]  # the front end's trust, 0..1 (below 0.5: it rejected it)
+    score: list[float]  # the correlative score of its match, 0..1
+    auto_rejected: list[bool]
+
+
 class State(_Response):
     version: int
     map_version: int  # the version at which the poses last changed (an addition to the contract)
@@ -153,6 +179,7 @@ class State(_Response):
     inconsistency_m2: float | None
     history: list[HistoryItem]
     lines: list[CorrectionLines]  # the corrections in effect, in order, with their solved lines
+    loop_closures: LoopClosureState  # an addition to the contract (issue 14)
     journal: JournalInfo
 
 

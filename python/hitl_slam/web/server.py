@@ -1,6 +1,7 @@
-"""Starting the web UI: open or create the session (a map file, a ``.hitl`` file, or the demo
-room), bind the socket, build the app and run uvicorn until Ctrl-C. Everything the user is told
-goes through the ``announce`` callback (the CLI prints it); this module never prints.
+"""Starting the web UI: open or create the session (a map file, a ``.hitl`` file, a raw log run
+through the front end first, or the demo room), bind the socket, build the app and run uvicorn
+until Ctrl-C. Everything the user is told goes through the ``announce`` and ``progress``
+callbacks (the CLI prints them); this module never prints.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import os
 import signal
 import socket
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
@@ -30,6 +32,8 @@ __all__ = [
     "DEFAULT_PORT",
     "DEMO_FOLDER",
     "DEMO_WORLDS",
+    "FrontEndProgress",
+    "is_raw_log",
     "open_session",
     "run_server",
     "session_path_for",
@@ -44,6 +48,67 @@ DEMO_WORLDS = ("lost-poses", "campus")
 """The generated worlds ``--demo`` can serve (``hitl_slam.sim.lost_poses_room`` and ``campus``)."""
 
 _COMPRESSED = (".gz", ".bz2")
+_RAW_LOGS = (".clf", ".log")
+_FRONT_END_MARK = "hitl-slam"  # map.metadata["front_end"] of a map the front end built
+
+FrontEndProgress = Callable[[int, int, float | None], object]
+"""``progress(scans done, scans in all, real-time factor so far or None)`` while the front end
+runs over a raw log."""
+
+
+def is_raw_log(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a laser log the front end turns into a map: a CARMEN log (``.clf``,
+    ``.log``, optionally ``.gz``/``.bz2``) or a ROS bag (``.bag``, ``.db3``, ``.mcap``, or a ROS 2
+    bag directory)."""
+    from hitl_slam.io.rosbag import is_rosbag
+
+    name = Path(path).name.lower()
+    if name.endswith(_COMPRESSED):
+        name = os.path.splitext(name)[0]
+    return os.path.splitext(name)[1] in _RAW_LOGS or is_rosbag(path)
+
+
+def _built_by_front_end(session: Session) -> bool:
+    m = session.input_map
+    return m.metadata.get("front_end") == _FRONT_END_MARK or m.name.endswith(
+        "(hitl-slam front end)"
+    )
+
+
+def _front_end(
+    source: Path, max_range: float | None, progress: FrontEndProgress | None
+) -> tuple[Session, str]:
+    """Runs the front end over the raw log ``source`` and starts its session beside it."""
+    from hitl_slam.io.maps import load_map
+    from hitl_slam.io.rosbag import BagOptions, is_rosbag
+    from hitl_slam.slam import slam
+
+    # A bag's own SLAM trajectory is not where the front end starts: its odometry is.
+    bag = BagOptions(map_frame="") if is_rosbag(source) else None
+    raw = load_map(source, max_range=max_range, bag=bag)
+    duration = None
+    if raw.timestamps is not None and raw.num_poses > 1:
+        duration = float(raw.timestamps[-1] - raw.timestamps[0])
+    started = time.perf_counter()
+
+    def report(done: int, total: int) -> None:
+        if progress is None:
+            return
+        elapsed = time.perf_counter() - started
+        rtf = None
+        if duration is not None and duration > 0 and elapsed > 0 and total > 0:
+            rtf = duration * done / total / elapsed
+        progress(done, total, rtf)
+
+    result = slam(raw, progress=report)
+    path = session_path_for(source)
+    session = Session.new(result.map, path)
+    return session, (
+        f"ran the front end over {source} ({result.summary()}) and created the session {path} "
+        f"({_describe(session)})"
+    )
+
+
 _HINT = (
     "in the page: p toggles correction mode, then Ctrl-drag (colocation), Shift-drag "
     "(collinear), Shift+Alt-drag (perpendicular) or Shift+Ctrl-drag (parallel) draws; "
@@ -64,8 +129,13 @@ def session_path_for(map_path: str | os.PathLike[str]) -> Path:
 def _describe(session: Session) -> str:
     m = session.input_map
     applied = len(session.active)
+    loops = session.loop_closures
+    closures = ""
+    if loops:
+        rejected = len(session.rejected_loop_closures)
+        closures = f", {len(loops)} loop closures ({rejected} rejected)"
     return (
-        f"{m.num_poses} poses, {m.num_points} points, {applied} correction"
+        f"{m.num_poses} poses, {m.num_points} points{closures}, {applied} correction"
         f"{'' if applied == 1 else 's'} applied"
     )
 
@@ -77,15 +147,23 @@ def open_session(
     seed: int = 0,
     cwd: str | os.PathLike[str] | None = None,
     max_range: float | None = None,
+    front_end: bool = True,
+    progress: FrontEndProgress | None = None,
 ) -> tuple[Session, str]:
     """The session to serve and a sentence saying where it came from.
 
     ``target``: a ``.hitl`` file (reopened) or a map file (its session ``<stem>.hitl`` beside it
-    is created, or reopened when it exists). ``demo``: one of :data:`DEMO_WORLDS`, kept in
-    ``<cwd>/hitl-demo/<world>.hitl`` (reopened when present). Exactly one of them.
+    is created, or reopened when it exists). A raw log (:func:`is_raw_log`) is first run through
+    the front end (``progress`` is told how far it is), unless ``front_end`` is False: then its
+    logged poses are the map, as for a log that is already a corrected map. An existing session
+    is reopened only when it was made the same way (with or without the front end) from a file
+    of this name. ``demo``: one of :data:`DEMO_WORLDS`, kept in ``<cwd>/hitl-demo/<world>.hitl``
+    (reopened when present). Exactly one of them.
 
     Raises:
-        InputError: neither or both given, an unknown demo world, a missing or unreadable file.
+        InputError: neither or both given, an unknown demo world, a missing or unreadable file,
+            ``front_end=False`` for a target that is not a raw log, an existing session that is
+            not this log's (made from another file, or the other way).
     """
     if (target is None) == (demo is None):
         raise InputError(
@@ -111,25 +189,65 @@ def open_session(
         )
     assert target is not None  # checked above
     source = Path(target)
+    raw = is_raw_log(source)
+    if not front_end and not raw:
+        raise InputError(
+            f"{source}: --no-slam applies to raw logs (.clf, .log, ROS bags), which the front end "
+            "would turn into a map; this is not one: drop --no-slam"
+        )
     if source.suffix.lower() == ".hitl":
         if not source.is_file():
             raise InputError(f"{source}: no such session file; give an existing .hitl file")
         session = Session.open(source)
         return session, f"reopened the session {source} ({_describe(session)})"
-    if not source.is_file():
-        raise InputError(f"{source}: no such file; give a map (.covars, .clf, .log) or a .hitl")
+    if not (source.is_file() or (raw and source.is_dir())):
+        raise InputError(
+            f"{source}: no such file; give a map (.covars), a raw log (.clf, .log, a ROS bag) "
+            "or a .hitl"
+        )
     path = session_path_for(source)
     if path.exists():
         session = Session.open(path)
+        try:
+            _check_session_of(session, path, source, raw and front_end)
+        except BaseException:
+            session.close()
+            raise
         return session, (
             f"reopened the session {path} of {source} ({_describe(session)}); delete it to "
             "start over from the map"
         )
+    if raw and front_end:
+        return _front_end(source, max_range, progress)
     from hitl_slam.io.maps import load_map
 
     the_map = load_map(source, max_range=max_range)
     session = Session.new(the_map, path)
     return session, f"created the session {path} from {source} ({_describe(session)})"
+
+
+def _check_session_of(session: Session, path: Path, source: Path, front_end: bool) -> None:
+    """Refuses a session beside ``source`` that is not its session as asked for: made from a
+    file of another name, or with the front end when the log's own poses were asked for (or the
+    other way)."""
+    stored = session.input_map.source
+    if stored is not None and Path(stored).name != source.name:
+        raise InputError(
+            f"{path}: this session was made from {Path(stored).name}, not {source.name}; "
+            f"serve {path} itself, or move it away to start a session of {source.name}"
+        )
+    built = _built_by_front_end(session)
+    if not is_raw_log(source) or built == front_end:
+        return
+    if front_end:
+        raise InputError(
+            f"{path}: this session holds the log's own poses (made with --no-slam); serve it "
+            "with --no-slam, or move it away to run the front end over the log"
+        )
+    raise InputError(
+        f"{path}: this session holds the front end's map of the log; serve it without "
+        "--no-slam, or move it away to serve the log's own poses"
+    )
 
 
 def _bind(host: str, port: int) -> socket.socket:
@@ -185,6 +303,8 @@ def run_server(
     no_token: bool = False,
     journal: str | os.PathLike[str] | None = None,
     max_range: float | None = None,
+    front_end: bool = True,
+    progress: FrontEndProgress | None = None,
     open_browser: bool = False,
     announce: Callable[[str], None] = lambda _message: None,
     poll_timeout: float = DEFAULT_POLL_TIMEOUT,
@@ -192,7 +312,8 @@ def run_server(
 ) -> None:
     """Serve the web UI on ``host``:``port`` until interrupted (Ctrl-C or SIGTERM).
 
-    ``target``/``demo``/``seed``: the session, see :func:`open_session`. ``token``: the access
+    ``target``/``demo``/``seed``/``front_end``: the session, see :func:`open_session`;
+    ``progress`` follows the front end over a raw log. ``token``: the access
     token (default: a new random one); ``no_token=True`` serves without one, allowed on a
     loopback ``host`` only. ``port=0`` picks a free port. ``journal``: a corrections file to step
     through. ``announce`` receives each line for the user, among them
@@ -208,8 +329,11 @@ def run_server(
         check_token(token)
     if no_token and not is_loopback(host):
         raise InputError(f"refusing to serve on {host} without an access token; drop --no-token")
-    if (target is None) == (demo is None):
-        open_session(target, demo=demo, max_range=max_range)  # raises the one-line reason
+    if (target is None) == (demo is None) or (
+        not front_end and target is not None and not is_raw_log(target)
+    ):
+        # The one-line reason, before anything is bound.
+        open_session(target, demo=demo, max_range=max_range, front_end=front_end)
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be 0..65535 (0: any free port), got {port}")
     steps: list[Step] = []
@@ -222,7 +346,14 @@ def run_server(
     secret = None if no_token else (token if token is not None else new_token())
     sock = _bind(host, port)
     try:
-        session, how = open_session(target, demo=demo, seed=seed, max_range=max_range)
+        session, how = open_session(
+            target,
+            demo=demo,
+            seed=seed,
+            max_range=max_range,
+            front_end=front_end,
+            progress=progress,
+        )
         try:
             session_host = SessionHost(
                 session, journal=steps, journal_source=source, poll_timeout=poll_timeout

@@ -115,6 +115,12 @@ export function applyCorrection(drawn) {
   return postJson("api/corrections", drawn);
 }
 
+/** GET /api/loop_closures: the map's loop closures (pairs, weight, score, auto_rejected), once. */
+export const getLoopClosures = () => getJson("api/loop_closures");
+
+/** POST /api/loop_closures: reject loop closure `index` (or reinstate it); the new State. */
+export const setLoopClosure = (index, rejected) => postJson("api/loop_closures", { index, rejected });
+
 export const undo = () => postJson("api/undo");
 export const redo = () => postJson("api/redo");
 export const journalStep = () => postJson("api/journal/step");

@@ -23,6 +23,12 @@
 //   appliedLines()   the applied corrections' lines as drawn: [{index, mode, a, b}], a and b
 //                    each [[x0, y0], [x1, y1]] in world metres (the server's State.lines)
 //   hintVisible()    whether the first-use hint (how to start a correction) shows
+//   loopClosures()   the loop closures as drawn: [{index, pair, weight, rejected, style, p0, p1}]
+//                    (style "trusted", "down-weighted", "untrusted" or "rejected"; p0, p1 the
+//                    world positions of the two poses on screen); [] for a map without any
+//   selectedLoop     index of the selected loop closure, or null
+//   loopsVisible     whether the loop closures are drawn (key c)
+//   loopStatus()     the status bar's loop closure text
 //   frameTimes()     recent frame durations [ms], each up to a 1-pixel readPixels (GPU done)
 //   rafIntervals()   recent intervals between consecutive animation frames [ms]
 //   splatTimes()     of the frame times, the part spent counting points on the CPU ("cpu" path)
@@ -76,6 +82,14 @@ export function installHooks(app) {
     appliedLines: () =>
       app.applied.map((c) => ({ index: c.index, mode: c.mode, a: c.a.segment, b: c.b.segment })),
     hintVisible: () => app.ui.hintVisible(),
+    loopClosures: () => app.placedLoops.map((c) => ({ ...c })),
+    get selectedLoop() {
+      return app.selectedLoop;
+    },
+    get loopsVisible() {
+      return app.loopsVisible;
+    },
+    loopStatus: () => document.getElementById("st-loops").textContent,
     worldToClient(x, y) {
       const rect = app.canvas.getBoundingClientRect();
       const [sx, sy] = app.camera.toScreen(x, y);

@@ -55,7 +55,11 @@ export function attachInput(app, canvas) {
     const d = drag;
     drag = null;
     canvas.classList.remove("drawing", "panning");
-    if (d.kind !== "draw") return;
+    if (d.kind !== "draw") {
+      // A click (no drag) outside correction mode selects the loop closure under it.
+      if (Math.hypot(x - d.x, y - d.y) < MIN_SEGMENT_PX && !app.correcting) app.click(x, y);
+      return;
+    }
     if (Math.hypot(x - d.x, y - d.y) < MIN_SEGMENT_PX) {
       app.setDraft(null, null);
       return;
@@ -92,6 +96,10 @@ export function attachInput(app, canvas) {
       U: () => app.redo(),
       v: () => app.save(),
       l: () => app.journalStep(),
+      c: () => app.toggleLoops(),
+      n: () => app.stepLoop(1),
+      N: () => app.stepLoop(-1),
+      x: () => app.toggleSelectedLoop(),
       f: () => app.fit(),
       "?": () => app.toggleHelp(),
     }[e.key];

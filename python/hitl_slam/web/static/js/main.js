@@ -8,6 +8,7 @@ import { Camera } from "./camera.js";
 import { PendingPair, sigmaForScale } from "./correction.js";
 import { installHooks } from "./hooks.js";
 import { attachInput } from "./interaction.js";
+import { loopLines, pickLoop, placeLoops } from "./loops.js";
 import { overlay } from "./overlay.js";
 import { Ui } from "./ui.js";
 import { MapView } from "./view.js";
@@ -37,6 +38,10 @@ class App {
     this.measure = null; // {t0, t1, solveMs, version} of the apply awaiting its first frame
     this.lastLoad = null; // {version, fetchMs, uploadMs, bytes} of the latest poses fetched
     this.labels = []; // "1a"/"1b" labels of the applied corrections
+    this.loops = null; // the map's loop closures (GET /api/loop_closures), fetched once
+    this.loopsVisible = true; // key c
+    this.selectedLoop = null; // index of the selected loop closure
+    this.placedLoops = []; // the loop closures as drawn now (loops.js placeLoops)
     this.lastRedraw = null;
     this.frameScheduled = false;
     this.lastFrameTs = null;
@@ -59,6 +64,7 @@ class App {
     for (let p = 0; p + 1 < scans.offsets.length; p++) owner.fill(p, scans.offsets[p], scans.offsets[p + 1]);
     this.owner = owner;
     this.view.setScans(scans.points, scans.offsets);
+    if (state.loop_closures && state.loop_closures.count > 0) this.loops = await api.getLoopClosures();
     this.ui.setName(state.name, state.session);
     this.setState(state);
     await this.ensureMap(state.version);
@@ -73,6 +79,8 @@ class App {
     on("btn-fit", () => this.fit());
     on("btn-save", () => this.save());
     on("btn-journal", () => this.journalStep());
+    on("btn-loops", () => this.toggleLoops());
+    on("btn-loop-toggle", () => this.toggleSelectedLoop());
     on("btn-help", () => this.toggleHelp());
     for (const b of document.querySelectorAll("button.mode")) {
       b.addEventListener("click", () => {
@@ -101,6 +109,7 @@ class App {
     this.view.setConstrained(flags);
     this.constrained = flags;
     this.ui.setHint(s);
+    this.refreshLoops();
     this.followState();
     if (s.version > this.version) {
       // Not every change moves the map (a rejection, the inconsistency arriving): the server's
@@ -150,6 +159,7 @@ class App {
           const t1 = performance.now();
           this.poses = fetched.poses;
           this.view.setPoses(fetched.poses, this.constrained || new Uint8Array(0));
+          this.refreshLoops();
           const t2 = performance.now();
           this.version = Math.max(this.version, fetched.version);
           this.wanted = Math.max(this.wanted, fetched.version);
@@ -290,6 +300,99 @@ class App {
     this.requestRender();
   }
 
+  // -- loop closures -------------------------------------------------------------------------
+
+  /** The set of rejected loop closures the latest state names. */
+  rejectedLoops() {
+    const lc = this.state && this.state.loop_closures;
+    return new Set(lc ? lc.rejected : []);
+  }
+
+  /** Places the loop closures on the poses on screen with the latest state's rejections. */
+  refreshLoops() {
+    if (!this.loops) return;
+    this.placedLoops = placeLoops(this.loops, this.rejectedLoops(), this.poses);
+    this.ui.setLoops(this.loopSummary());
+    this.refreshLines();
+  }
+
+  /** What the status bar says about the loop closures (and the selected one). */
+  loopSummary() {
+    if (!this.loops) return null;
+    const count = this.loops.pairs.length;
+    const rejected = this.rejectedLoops().size;
+    let text = `loop closures ${count - rejected}/${count} in the solve`;
+    if (!this.loopsVisible) text += " (hidden: c)";
+    const k = this.selectedLoop;
+    if (k !== null && k < count) {
+      const [i, j] = this.loops.pairs[k];
+      const state = this.rejectedLoops().has(k) ? "rejected" : "in the solve";
+      text = `loop closure ${k}: poses ${i}\u2013${j}, trust ${this.loops.weight[k].toFixed(2)}, ${state} \u00b7 ${text}`;
+    }
+    return { text, selected: k, rejected: k !== null && this.rejectedLoops().has(k) };
+  }
+
+  /** A click at screen (x, y): selects the loop closure under it, or clears the selection. */
+  click(x, y) {
+    if (!this.loops || !this.loopsVisible) return;
+    this.selectLoop(pickLoop(this.placedLoops, this.camera, x, y));
+  }
+
+  selectLoop(k) {
+    this.selectedLoop = k;
+    this.refreshLoops();
+    if (k !== null) {
+      const s = this.loopSummary();
+      this.ui.show(`${s.text.split(" \u00b7 ")[0]}; x ${s.rejected ? "reinstates" : "rejects"} it`, "info");
+    }
+  }
+
+  /** Keys n / N: select the next (previous) loop closure and centre the view on it. */
+  stepLoop(direction) {
+    if (!this.loops || this.loops.pairs.length === 0) {
+      this.hint("this map has no loop closures (only a map the front end built has them)");
+      return;
+    }
+    const count = this.loops.pairs.length;
+    const k = this.selectedLoop === null ? (direction > 0 ? 0 : count - 1) : (this.selectedLoop + direction + count) % count;
+    if (!this.loopsVisible) this.toggleLoops();
+    this.selectLoop(k);
+    const c = this.placedLoops.find((p) => p.index === k);
+    if (c) {
+      this.camera.cx = (c.p0[0] + c.p1[0]) / 2;
+      this.camera.cy = (c.p0[1] + c.p1[1]) / 2;
+      this.requestRender();
+    }
+  }
+
+  /** Key c: show or hide the loop closures. */
+  toggleLoops() {
+    if (!this.loops) {
+      this.hint("this map has no loop closures (only a map the front end built has them)");
+      return;
+    }
+    this.loopsVisible = !this.loopsVisible;
+    this.ui.setLoopsVisible(this.loopsVisible);
+    this.refreshLoops();
+  }
+
+  /** Key x: reject the selected loop closure, or reinstate it; the map re-solves at once. */
+  toggleSelectedLoop() {
+    const k = this.selectedLoop;
+    if (k === null || !this.loops) {
+      this.hint("select a loop closure first: click its line, or n / N");
+      return Promise.resolve();
+    }
+    const reject = !this.rejectedLoops().has(k);
+    return this.command(async () => {
+      const s = await api.setLoopClosure(k, reject);
+      const last = s.last;
+      const ms = last ? ` in ${last.time_ms.toFixed(0)} ms` : "";
+      this.ui.show(`loop closure ${k} ${reject ? "rejected" : "reinstated"}; the map re-solved${ms}`, "ok");
+      this.setState(s);
+    });
+  }
+
   /** Rebuilds the overlay (lines and labels) from the corrections, the pair and the preview. */
   refreshLines() {
     const { under, over, labels } = overlay({
@@ -301,6 +404,7 @@ class App {
       preview: this.preview,
     });
     this.labels = labels;
+    if (this.loops && this.loopsVisible) under.unshift(...loopLines(this.placedLoops, this.selectedLoop));
     this.view.setLines(under, over);
     this.requestRender();
   }

@@ -52,7 +52,7 @@ export class Ui {
     $("st-applied").textContent = `${s.applied} correction${s.applied === 1 ? "" : "s"}`;
     const last = s.last;
     if (last && last.kind !== "reject") {
-      $("st-solve").textContent = `${last.kind} ${fmtMs(last.time_ms)}`;
+      $("st-solve").textContent = `${last.kind.replace("_", " ")} ${fmtMs(last.time_ms)}`;
       $("st-cost").textContent = `cost ${fmtCost(last.initial_cost)} \u2192 ${fmtCost(last.cost)}`;
       $("st-iter").textContent = `${last.iterations} it`;
     } else if (!last) {
@@ -73,6 +73,24 @@ export class Ui {
     $("btn-journal").disabled = j.next >= j.loaded;
     $("st-journal").hidden = !hasJournal;
     $("st-journal").textContent = `journal ${j.next}/${j.loaded}`;
+  }
+
+  /** The loop closures' part of the status bar and the buttons (null: the map has none). */
+  setLoops(summary) {
+    const has = summary !== null;
+    $("st-loops").hidden = !has;
+    $("loop-buttons").hidden = !has;
+    $("legend-loops").hidden = !has;
+    if (!has) return;
+    $("st-loops").textContent = summary.text;
+    const button = $("btn-loop-toggle");
+    button.disabled = summary.selected === null;
+    button.textContent = summary.selected !== null && summary.rejected ? "Reinstate" : "Reject";
+  }
+
+  setLoopsVisible(visible) {
+    $("btn-loops").classList.toggle("selected", visible);
+    $("btn-loops").setAttribute("aria-pressed", String(visible));
   }
 
   setCursor(x, y) {
