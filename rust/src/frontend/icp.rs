@@ -8,10 +8,9 @@
 //! `R(theta) c + (x, y)` among the reference points; for consecutive scans of a chain that is
 //! `z_k = x_k^-1 x_(k+1)`, the odometry's own measurement.
 
+use kd_tree::KdTree;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
-use rstar::primitives::GeomWithData;
-use rstar::RTree;
 
 use crate::error::{HitlError, Result};
 use crate::geometry::{principal_normal, weighted_scatter};
@@ -86,26 +85,24 @@ impl ScanMatch {
 /// A reference scan ready for matching: its points in an R*-tree, with a unit normal where its
 /// neighbourhood is a line.
 pub struct Reference {
-    tree: RTree<GeomWithData<[f64; 2], usize>>,
+    /// A k-d tree over `points`, each with its index.
+    tree: KdTree<([f64; 2], usize)>,
     points: Vec<[f64; 2]>,
     normals: Vec<Option<[f64; 2]>>,
 }
 
 impl Reference {
     pub fn new(points: &[[f64; 2]], radius: f64) -> Self {
-        let tree = RTree::bulk_load(
-            points
-                .iter()
-                .enumerate()
-                .map(|(i, p)| GeomWithData::new(*p, i))
-                .collect(),
+        let tree = KdTree::build_by_ordered_float(
+            points.iter().enumerate().map(|(i, p)| (*p, i)).collect(),
         );
         let normals = points
             .iter()
             .map(|p| {
                 let near: Vec<[f64; 2]> = tree
-                    .locate_within_distance(*p, radius * radius)
-                    .map(|e| points[e.data])
+                    .within_radius(p, radius)
+                    .into_iter()
+                    .map(|e| e.0)
                     .collect();
                 if near.len() < 3 {
                     return None;
@@ -131,11 +128,8 @@ impl Reference {
 
     /// The nearest reference point to `q` and its squared distance.
     fn nearest(&self, q: [f64; 2]) -> (usize, f64) {
-        match self.tree.nearest_neighbor(&q) {
-            Some(e) => {
-                let p = e.geom();
-                (e.data, (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2))
-            }
+        match self.tree.nearest(&q) {
+            Some(e) => (e.item.1, e.squared_distance),
             None => (0, f64::INFINITY),
         }
     }
