@@ -582,14 +582,31 @@ def apply_in_order(
     active: list[Interpretation] = []
     outcomes: list[CorrectionOutcome] = []
     for k, drawn in enumerate(corrections):
-        try:
-            outcome = apply(map, poses, drawn, list(active), config)
-        except CorrectionRejected as exc:
-            raise CorrectionRejected(f"correction {k + 1}: {exc}") from exc
-        poses = _checked_poses(outcome.poses, poses.shape)
-        active.append(outcome.interpretation)
-        outcomes.append(outcome)
+        poses = _apply_next(
+            apply, map, poses, drawn, active, outcomes, config, f"correction {k + 1}"
+        )
     return poses, outcomes
+
+
+def _apply_next(
+    apply: Applier,
+    map: Map,
+    poses: NDArray[np.float64],
+    drawn: DrawnCorrection,
+    active: list[Interpretation],
+    outcomes: list[Any],
+    config: Config,
+    where: str,
+) -> NDArray[np.float64]:
+    """Applies ``drawn`` on top of ``active`` at ``poses``, appends its interpretation and
+    outcome, and returns the new poses; a refusal names ``where``."""
+    try:
+        outcome = apply(map, poses, drawn, list(active), config)
+    except CorrectionRejected as exc:
+        raise CorrectionRejected(f"{where}: {exc}") from exc
+    active.append(outcome.interpretation)
+    outcomes.append(outcome)
+    return _checked_poses(outcome.poses, poses.shape)
 
 
 class Session:
@@ -1081,13 +1098,9 @@ class Session:
                 poses = _checked_poses(solved, poses.shape)
                 outcomes.append(report)
                 continue
-            try:
-                outcome = apply(target, poses, step.drawn, list(active), self._config)
-            except CorrectionRejected as exc:
-                raise CorrectionRejected(f"step {k + 1}: {exc}") from exc
-            poses = _checked_poses(outcome.poses, poses.shape)
-            active.append(outcome.interpretation)
-            outcomes.append(outcome)
+            poses = _apply_next(
+                apply, target, poses, step.drawn, active, outcomes, self._config, f"step {k + 1}"
+            )
         return poses, outcomes
 
     # -- plumbing ---------------------------------------------------------------------------
