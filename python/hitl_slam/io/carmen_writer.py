@@ -35,6 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 from hitl_slam.errors import InputError
 from hitl_slam.geometry import compose_rows
 from hitl_slam.io.atomic import atomic_write_text
+from hitl_slam.io.carmen import _tag
 from hitl_slam.io.textfile import PathLike, check_regular_file, input_error, read_lines
 from hitl_slam.map import Map
 
@@ -90,14 +91,16 @@ def _rewrite(map: Map, poses: NDArray[np.float64], source: str) -> str:
     robots = compose_rows(poses, np.broadcast_to(inverse, poses.shape))
     pose_of_line = {int(line): k for k, line in enumerate(scan_lines)}
     by_stamp: dict[str, int] = {}
+    flaser_copies: list[int] = []  # where the FLASER copies of ROBOTLASER1 scans are in `out`
     out: list[str] = []
+    written = 0
     for number, line in enumerate(lines, 1):
-        tokens = line.split()
-        tag = tokens[0] if tokens else ""
+        tag = _tag(line)
         if tag == laser:
             k = pose_of_line.get(number)
             if k is None:
                 continue  # a scan the map does not hold: no corrected pose for it
+            tokens = line.split()
             if tag == "FLASER":
                 n = int(tokens[1])
                 tokens[2 + n : 5 + n] = _fmt(poses[k])
@@ -109,17 +112,19 @@ def _rewrite(map: Map, poses: NDArray[np.float64], source: str) -> str:
                 tokens[first + 3 : first + 6] = _fmt(robots[k])
                 by_stamp[tokens[first + 11]] = k
             out.append(" ".join(tokens))
+            written += 1
         else:
-            out.append(line.rstrip("\r\n"))  # FLASER copies of ROBOTLASER1 scans: see below
-    if laser == "ROBOTLASER1" and by_stamp:
-        for i, line in enumerate(out):
-            tokens = line.split()
-            if tokens and tokens[0] == "FLASER" and len(tokens) > 2:
-                n = int(tokens[1])
-                if len(tokens) == n + 11 and (k := by_stamp.get(tokens[8 + n])) is not None:
-                    tokens[2 + n : 5 + n] = _fmt(poses[k])
-                    out[i] = " ".join(tokens)
-    if not any(_tag(line) == laser for line in out):
+            if tag == "FLASER":
+                flaser_copies.append(len(out))
+            out.append(line.rstrip("\r\n"))
+    # The FLASER copies of ROBOTLASER1 scans (same ipc timestamp) get the same laser pose.
+    for i in flaser_copies:
+        tokens = out[i].split()
+        n = int(tokens[1]) if len(tokens) > 2 and tokens[1].isdigit() else -1
+        if len(tokens) == n + 11 and (k := by_stamp.get(tokens[8 + n])) is not None:
+            tokens[2 + n : 5 + n] = _fmt(poses[k])
+            out[i] = " ".join(tokens)
+    if not written:
         raise input_error(
             source,
             None,
@@ -128,11 +133,6 @@ def _rewrite(map: Map, poses: NDArray[np.float64], source: str) -> str:
             "from the map",
         )
     return "\n".join(out) + "\n"
-
-
-def _tag(line: str) -> str:
-    tokens = line.split(maxsplit=1)
-    return tokens[0] if tokens else ""
 
 
 def _beams(points: NDArray[np.float64]) -> tuple[float, float, int, NDArray[np.float64]]:
