@@ -24,7 +24,7 @@ use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side, Spec};
 
 use crate::error::{HitlError, Result};
-use crate::solver::block_amd;
+use crate::solver::{block_amd, sym_upper_mul_add};
 
 const NONE: usize = usize::MAX;
 
@@ -333,7 +333,7 @@ impl BlockSystem {
         );
         // One step of iterative refinement: long chains make H ill-conditioned (~ n^2).
         let mut r = rhs;
-        mul_sym_upper_sub(cp, &self.row_idx, &h, &x, &mut r);
+        sym_upper_mul_add(cp, &self.row_idx, &h, -1.0, &x, &mut r);
         llt.solve_in_place_with_conj(
             Conj::No,
             MatMut::from_column_major_slice_mut(&mut r, dim, 1),
@@ -360,22 +360,6 @@ impl BlockSystem {
                 }
             })
             .collect())
-    }
-}
-
-/// `y -= A x` for a symmetric A stored as its upper triangle in CSC.
-fn mul_sym_upper_sub(col_ptr: &[usize], row_idx: &[usize], vals: &[f64], x: &[f64], y: &mut [f64]) {
-    for c in 0..x.len() {
-        let xc = x[c];
-        let mut acc = 0.0;
-        for k in col_ptr[c]..col_ptr[c + 1] {
-            let r = row_idx[k];
-            y[r] -= vals[k] * xc;
-            if r != c {
-                acc += vals[k] * x[r];
-            }
-        }
-        y[c] -= acc;
     }
 }
 

@@ -646,6 +646,7 @@ impl From<&IterationRecord> for PyIterationRecord {
 pub struct PySolveReport {
     iterations: usize,
     linear_solves: usize,
+    chord_steps: usize,
     initial_cost: f64,
     final_cost: f64,
     initial_chi2: f64,
@@ -669,6 +670,7 @@ impl PySolveReport {
         Self {
             iterations: r.iterations,
             linear_solves: r.linear_solves,
+            chord_steps: r.chord_steps,
             initial_cost: r.initial_cost,
             final_cost: r.final_cost,
             initial_chi2: r.initial_chi2,

@@ -20,6 +20,7 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
     let mut trial = values.clone();
     let mut lambda = params.lambda_initial;
     let mut nu = 2.0;
+    let mut chord_ready = false;
     'outer: loop {
         if let Some(done) = p.converged_at_point(cost) {
             return Ok(done);
@@ -28,17 +29,31 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
             return Ok(max_iterations(p, cost));
         }
         let mut watchdog_used = params.watchdog_steps == 0;
+        let mut try_chord = chord_ready;
         loop {
-            let ok = p.solve(lambda, &mut delta)?;
+            let chord = if std::mem::take(&mut try_chord) {
+                p.chord(lambda, &mut delta)
+            } else {
+                None
+            };
+            let is_chord = chord.is_some();
+            let ok = is_chord || p.solve(lambda, &mut delta)?;
             let step_norm = norm(&delta);
             let mut new_cost = f64::NAN;
             let mut undamped = false;
             if ok {
-                // Decrease predicted by the linear model |r + J d|^2: -2 g.d - d^T H d, which with
-                // (H + lambda D) d = -g equals -g.d + lambda d^T D d (both terms >= 0).
-                let gd = -p.gradient_dot(&delta);
-                let damping = lambda * p.pattern.damping_quadratic(&delta, params.diagonal_damping);
-                let predicted = gd + damping;
+                let (gd, damping, predicted) = match chord {
+                    Some(c) => (c.gd, c.damping, c.predicted),
+                    None => {
+                        // Decrease predicted by the linear model |r + J d|^2: -2 g.d - d^T H d,
+                        // which with (H + lambda D) d = -g equals -g.d + lambda d^T D d (both
+                        // terms >= 0).
+                        let gd = -p.gradient_dot(&delta);
+                        let damping =
+                            lambda * p.pattern.damping_quadratic(&delta, params.diagonal_damping);
+                        (gd, damping, gd + damping)
+                    }
+                };
                 undamped = damping <= UNDAMPED_SHARE * gd;
                 let (c, gain) = p.try_step(values, &delta, &mut trial, cost, predicted);
                 new_cost = c;
@@ -48,9 +63,11 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
                     nu = 2.0;
                     std::mem::swap(values, &mut trial);
                     p.iterations += 1;
+                    p.chord_steps += usize::from(is_chord);
                     p.record(new_cost, lambda, step_norm, true);
                     let old = cost;
                     cost = new_cost;
+                    chord_ready = undamped && chord_worth_trying(old, cost, rho);
                     if undamped {
                         if let Some(done) = p.converged_after_step(old, cost, step_norm, values) {
                             return Ok(done);
@@ -58,6 +75,10 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
                     }
                     cost = p.linearize(values);
                     continue 'outer;
+                }
+                if is_chord {
+                    // The previous factor's step failed; take the ordinary one at this damping.
+                    continue;
                 }
                 if undamped {
                     if let Some(done) = p.converged_by_model(predicted, cost) {
@@ -69,6 +90,7 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
             p.record(new_cost, lambda, step_norm, false);
             if ok && undamped && !watchdog_used {
                 watchdog_used = true;
+                chord_ready = false;
                 if let Some((x, _)) = p.watchdog(values, cost)? {
                     *values = x;
                     cost = p.linearize(values);
@@ -90,4 +112,10 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
             }
         }
     }
+}
+
+/// Whether the last accepted step suggests the next linearization is close enough to the one
+/// the factor was computed at for the chord step to pass its test.
+fn chord_worth_trying(old: f64, new: f64, rho: f64) -> bool {
+    (old - new) < 0.05 * old && (rho - 1.0).abs() < 0.01
 }

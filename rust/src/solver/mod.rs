@@ -25,6 +25,7 @@ mod robust;
 mod test_problems;
 mod woodbury;
 
+pub(crate) use linear_solve::sym_upper_mul_add;
 pub use marginals::marginal_covariances;
 pub use optimize::optimize;
 pub(crate) use ordering::block_amd;

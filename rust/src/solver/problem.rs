@@ -8,6 +8,7 @@
 
 use std::time::Instant;
 
+use super::linear_solve::{ChordStep, ChordWork};
 use super::params::SolverParams;
 use super::pattern::SparsityPattern;
 use super::report::{IterationRecord, Termination};
@@ -19,6 +20,14 @@ use crate::values::Values;
 /// An LM step counts as undamped when the damping term `lambda d^T D d` is at most this share
 /// of `-g.d = d^T H d + lambda d^T D d`.
 pub(super) const UNDAMPED_SHARE: f64 = 0.5;
+
+/// The forcing term of the chord step's inexact-Newton test, `|A d + g| <= eta |g|` (Ceres'
+/// default `eta` for its truncated Newton solvers is 0.1).
+pub(super) const CHORD_ETA: f64 = 0.1;
+
+/// At most this many conjugate-gradient iterations on the held factor (each a triangular solve
+/// pair and a product with H, a small fraction of a factorization) before factorizing anew.
+pub(super) const CHORD_MAX_ITERATIONS: usize = 4;
 
 /// How an algorithm ended: the reason, what it says, and the final cost.
 pub(super) struct Outcome {
@@ -49,6 +58,11 @@ pub(super) struct Problem<'a> {
     pub linear_solves: usize,
     pub iterations: usize,
     pub history: Vec<IterationRecord>,
+    /// Whether the pattern holds a numeric factor from a successful solve (any linearization).
+    factor_held: bool,
+    /// Steps taken on a previous factor (`chord`) instead of a new factorization.
+    pub chord_steps: usize,
+    chord_work: ChordWork,
 }
 
 impl<'a> Problem<'a> {
@@ -69,6 +83,9 @@ impl<'a> Problem<'a> {
             linear_solves: 0,
             iterations: 0,
             history: Vec::new(),
+            factor_held: false,
+            chord_steps: 0,
+            chord_work: ChordWork::default(),
         }
     }
 
@@ -100,7 +117,28 @@ impl<'a> Problem<'a> {
             .solve_damped(lambda, self.params.diagonal_damping, delta)?;
         self.time_factorize += t.elapsed().as_secs_f64();
         self.linear_solves += 1;
+        self.factor_held = ok;
         Ok(ok)
+    }
+
+    /// The chord step on the factor held from an earlier solve (see
+    /// `SparsityPattern::chord_step`): `None` when there is none or the step is not an inexact
+    /// Newton step with forcing term `CHORD_ETA`.
+    pub fn chord(&mut self, lambda: f64, delta: &mut [f64]) -> Option<ChordStep> {
+        if !self.factor_held {
+            return None;
+        }
+        let t = Instant::now();
+        let step = self.pattern.chord_step(
+            lambda,
+            self.params.diagonal_damping,
+            CHORD_ETA,
+            CHORD_MAX_ITERATIONS,
+            delta,
+            &mut self.chord_work,
+        );
+        self.time_factorize += t.elapsed().as_secs_f64();
+        step
     }
 
     /// Evaluates the step `delta` from `values` into `trial`: the trial cost and, when it

@@ -73,8 +73,11 @@ pub struct IterationRecord {
 pub struct SolveReport {
     /// Accepted steps (Gauss-Newton: all steps).
     pub iterations: usize,
-    /// Linear solves, accepted or not.
+    /// Linear solves with a new factorization, accepted or not.
     pub linear_solves: usize,
+    /// Accepted steps solved on the factor of an earlier linearization (Levenberg-Marquardt's
+    /// chord step, conjugate gradients preconditioned by the held factor) instead of a new one.
+    pub chord_steps: usize,
     /// The cost minimized: chi2 `sum |r|^2`, or with robust kernels `sum rho(|r|^2)`.
     pub initial_cost: f64,
     pub final_cost: f64,
