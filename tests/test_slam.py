@@ -148,3 +148,27 @@ def test_the_command_line_writes_a_session_and_refuses_bad_input(tmp_path: Path)
     assert len(bad.stderr.strip().splitlines()) == 1
     assert "empty.clf" in bad.stderr
     assert not (tmp_path / "e.g2o").exists()
+
+
+def test_the_summary_times_by_the_log_clock_only_when_it_can(tmp_path: Path) -> None:
+    """A log whose timestamps span nothing (written all at once) gets no real-time factor, not
+    "0.0x real time"; a plausible clock gets one."""
+    import dataclasses
+    import gzip
+
+    path = LASER / "intel-corrected.log.gz"
+    if not path.is_file():
+        pytest.skip("../shared/datasets/laser is not beside the repository")
+    with gzip.open(path, "rt") as f:
+        lines = [line for line in f if line.startswith(("FLASER", "ROBOTLASER1"))][:30]
+    short = tmp_path / "short.clf"
+    short.write_text("".join(lines))
+    result = slam(read_carmen(short))
+    timed = dataclasses.replace(result, time_s=0.5, duration_s=3.0)
+    assert timed.real_time_factor == pytest.approx(6.0)
+    assert "6.0x real time" in timed.summary()
+    for duration in (0.0, 0.01, float("nan")):
+        flat = dataclasses.replace(result, time_s=0.5, duration_s=duration)
+        assert flat.real_time_factor is None
+        assert "real time" not in flat.summary()
+    assert "too little to time it by" in dataclasses.replace(result, duration_s=0.0).summary()

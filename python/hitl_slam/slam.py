@@ -10,6 +10,7 @@ end got wrong, reject a loop closure it trusted, or reinstate one it rejected.
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Callable
@@ -30,6 +31,11 @@ FloatArray = NDArray[np.float64]
 
 REJECTED_WEIGHT = 0.5
 """A loop closure the final solve's dynamic covariance scaling weighs below this is rejected."""
+
+
+_MIN_SCAN_PERIOD_S = 1e-3
+"""Timestamps spanning less than this per scan are not the robot's clock (see
+:attr:`SlamResult.real_time_factor`)."""
 
 
 @dataclass(frozen=True)
@@ -72,15 +78,26 @@ class SlamResult:
 
     @property
     def real_time_factor(self) -> float | None:
-        if self.duration_s is None or self.time_s <= 0:
+        """Seconds of data per second of work; None when the log's timestamps cannot say (none,
+        or spanning under a millisecond per scan: no laser scans at a kilohertz, so the log's
+        clock was not the robot's, as in logs whose timestamps were all written at once)."""
+        d = self.duration_s
+        if d is None or not math.isfinite(d) or self.time_s <= 0:
             return None
-        return self.duration_s / self.time_s
+        if d < _MIN_SCAN_PERIOD_S * max(self.map.num_poses - 1, 1):
+            return None
+        return d / self.time_s
 
     def summary(self) -> str:
         loops = self.loop_closures
         accepted = int(loops.accepted.sum())
         rtf = self.real_time_factor
-        speed = "" if rtf is None else f", {rtf:.1f}x real time"
+        if rtf is not None:
+            speed = f", {rtf:.1f}x real time"
+        elif self.duration_s is not None and math.isfinite(self.duration_s):
+            speed = f"; the log's timestamps span {self.duration_s:.3g} s, too little to time it by"
+        else:
+            speed = ""
         return (
             f"{self.map.num_poses} scans, {self.keyframes.size} keyframes, {self.submaps} "
             f"submaps; loop closures: {accepted} accepted, {loops.pairs.shape[0] - accepted} "
