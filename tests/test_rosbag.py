@@ -777,3 +777,32 @@ def test_slam_on_a_bad_bag_is_one_line_exit_2_and_writes_nothing(
         assert err.startswith(f"hitl-slam: error: {path}: "), err
         assert expected in err, err
         assert sorted(p.name for p in tmp_path.iterdir()) == before, name
+
+
+def test_serve_reads_the_named_topics_of_a_bag(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`hitl-slam serve BAG` takes the bag options (--scan-topic ...) as the other commands do:
+    a bag with two LaserScan topics is refused without one (one line, exit 2, nothing written)
+    and served with it."""
+    pytest.importorskip("fastapi")
+    from hitl_slam.web.server import open_session
+
+    bag = simple_bag(4)
+    bag.more_scans["/rear"] = [
+        Scan(s.stamp, np.array([4.0]), 0.0, 0.1, 0.1, 10.0, "base_link") for s in bag.scans
+    ]
+    path = write_bag(bag, tmp_path / "run", "ros1")
+    assert main(["serve", str(path), "--no-slam", "--port", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "2 LaserScan topics (/rear, /scan)" in err, err
+    assert main(["serve", str(path), "--no-slam", "--scan-topic", "/nope", "--port", "0"]) == 2
+    assert "no topic '/nope'" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.bag"]
+    session, how = open_session(path, front_end=False, bag=BagOptions(scan_topic="/rear"))
+    try:
+        assert session.input_map.num_poses == 4
+        assert session.input_map.num_points == 4  # one beam per /rear scan, not /scan's three
+        assert "created the session" in how
+    finally:
+        session.close()

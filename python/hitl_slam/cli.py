@@ -910,6 +910,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
             max_range=args.max_range,
             front_end=not args.no_slam,
             progress=progress,
+            bag=_bag_options(args),
             demo=(args.demo_world or "lost-poses") if args.demo else None,
             seed=args.seed,
             host=args.host,
@@ -1319,6 +1320,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     serve.add_argument("--open", action="store_true", help="open the page in the web browser")
     _add_max_range(serve)
+    _add_bag_options(serve)
     serve.set_defaults(func=_cmd_serve)
 
     evaluate = sub.add_parser(

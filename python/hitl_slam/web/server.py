@@ -7,6 +7,7 @@ callbacks (the CLI prints them); this module never prints.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import gc
 import ipaddress
 import logging
@@ -18,6 +19,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from fastapi import FastAPI
 
@@ -27,6 +29,9 @@ from hitl_slam.session import Session
 from hitl_slam.web.app import DEFAULT_MAX_BODY, create_app
 from hitl_slam.web.host import DEFAULT_POLL_TIMEOUT, SessionHost
 from hitl_slam.web.security import check_token, is_loopback, new_token
+
+if TYPE_CHECKING:
+    from hitl_slam.io.rosbag import BagOptions
 
 __all__ = [
     "DEFAULT_PORT",
@@ -76,15 +81,24 @@ def _built_by_front_end(session: Session) -> bool:
 
 
 def _front_end(
-    source: Path, max_range: float | None, progress: FrontEndProgress | None
+    source: Path,
+    max_range: float | None,
+    progress: FrontEndProgress | None,
+    bag: BagOptions | None = None,
 ) -> tuple[Session, str]:
-    """Runs the front end over the raw log ``source`` and starts its session beside it."""
+    """Runs the front end over the raw log ``source`` and starts its session beside it (a bag
+    read with ``bag``'s topics and frames)."""
     from hitl_slam.io.maps import load_map
     from hitl_slam.io.rosbag import BagOptions, is_rosbag
     from hitl_slam.slam import slam
 
     # A bag's own SLAM trajectory is not where the front end starts: its odometry is.
-    bag = BagOptions(map_frame="") if is_rosbag(source) else None
+    if is_rosbag(source):
+        bag = (
+            dataclasses.replace(bag, map_frame=None)
+            if bag is not None
+            else BagOptions(map_frame="")
+        )
     raw = load_map(source, max_range=max_range, bag=bag)
     duration = None
     if raw.timestamps is not None and raw.num_poses > 1:
@@ -149,6 +163,7 @@ def open_session(
     max_range: float | None = None,
     front_end: bool = True,
     progress: FrontEndProgress | None = None,
+    bag: BagOptions | None = None,
 ) -> tuple[Session, str]:
     """The session to serve and a sentence saying where it came from.
 
@@ -158,7 +173,8 @@ def open_session(
     logged poses are the map, as for a log that is already a corrected map. An existing session
     is reopened only when it was made the same way (with or without the front end) from a file
     of this name. ``demo``: one of :data:`DEMO_WORLDS`, kept in ``<cwd>/hitl-demo/<world>.hitl``
-    (reopened when present). Exactly one of them.
+    (reopened when present). Exactly one of them. ``bag``: what to read from a ROS bag (topics,
+    frames; the front end always starts from the odometry).
 
     Raises:
         InputError: neither or both given, an unknown demo world, a missing or unreadable file,
@@ -218,10 +234,10 @@ def open_session(
             "start over from the map"
         )
     if raw and front_end:
-        return _front_end(source, max_range, progress)
+        return _front_end(source, max_range, progress, bag)
     from hitl_slam.io.maps import load_map
 
-    the_map = load_map(source, max_range=max_range)
+    the_map = load_map(source, max_range=max_range, bag=bag)
     session = Session.new(the_map, path)
     return session, f"created the session {path} from {source} ({_describe(session)})"
 
@@ -305,6 +321,7 @@ def run_server(
     max_range: float | None = None,
     front_end: bool = True,
     progress: FrontEndProgress | None = None,
+    bag: BagOptions | None = None,
     open_browser: bool = False,
     announce: Callable[[str], None] = lambda _message: None,
     poll_timeout: float = DEFAULT_POLL_TIMEOUT,
@@ -312,7 +329,7 @@ def run_server(
 ) -> None:
     """Serve the web UI on ``host``:``port`` until interrupted (Ctrl-C or SIGTERM).
 
-    ``target``/``demo``/``seed``/``front_end``: the session, see :func:`open_session`;
+    ``target``/``demo``/``seed``/``front_end``/``bag``: the session, see :func:`open_session`;
     ``progress`` follows the front end over a raw log. ``token``: the access
     token (default: a new random one); ``no_token=True`` serves without one, allowed on a
     loopback ``host`` only. ``port=0`` picks a free port. ``journal``: a corrections file to step
@@ -333,7 +350,7 @@ def run_server(
         not front_end and target is not None and not is_raw_log(target)
     ):
         # The one-line reason, before anything is bound.
-        open_session(target, demo=demo, max_range=max_range, front_end=front_end)
+        open_session(target, demo=demo, max_range=max_range, front_end=front_end, bag=bag)
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be 0..65535 (0: any free port), got {port}")
     steps: list[Step] = []
@@ -353,6 +370,7 @@ def run_server(
             max_range=max_range,
             front_end=front_end,
             progress=progress,
+            bag=bag,
         )
         try:
             session_host = SessionHost(
