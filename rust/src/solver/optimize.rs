@@ -157,6 +157,17 @@ mod tests {
         }
     }
 
+    /// Final chi2 equal to the reference's within 1e-9 relative.
+    fn assert_same_minimum(r: &SolveReport, reference: &SolveReport, what: &str) {
+        let rel = (r.final_chi2 - reference.final_chi2).abs() / reference.final_chi2;
+        assert!(
+            rel < 1e-9,
+            "{what}: {} vs {}",
+            r.final_chi2,
+            reference.final_chi2
+        );
+    }
+
     #[test]
     fn gauss_newton_lm_and_dogleg_reach_the_same_minimum() {
         for seed in 0..4 {
@@ -165,13 +176,7 @@ mod tests {
             for m in [Method::LevenbergMarquardt, Method::Dogleg] {
                 let (_, r) = solve(&mut g, &start, tight(m));
                 assert!(r.termination.converged(), "{m:?}: {}", r.termination_detail);
-                let rel = (r.final_chi2 - gn.final_chi2).abs() / gn.final_chi2;
-                assert!(
-                    rel < 1e-9,
-                    "{m:?} seed {seed}: {} vs {}",
-                    r.final_chi2,
-                    gn.final_chi2
-                );
+                assert_same_minimum(&r, &gn, &format!("{m:?} seed {seed}"));
             }
         }
     }
@@ -186,13 +191,7 @@ mod tests {
             let (_, gn) = solve(&mut g, &start, tight(Method::GaussNewton));
             let (_, lm) = solve(&mut g, &start, tight(Method::LevenbergMarquardt));
             assert!(lm.termination.converged(), "{}", lm.termination_detail);
-            let rel = (lm.final_chi2 - gn.final_chi2).abs() / gn.final_chi2;
-            assert!(
-                rel < 1e-9,
-                "seed {seed}: {} vs {}",
-                lm.final_chi2,
-                gn.final_chi2
-            );
+            assert_same_minimum(&lm, &gn, &format!("seed {seed}"));
             assert_eq!(lm.linear_solves + lm.chord_steps, lm.history.len());
             saved += lm.chord_steps;
         }
