@@ -160,7 +160,7 @@ pub struct CorrectionEngine {
     graph: FactorGraph,
     base_factors: usize,
     /// Recently used patterns, most recent last, keyed by the human part's structure.
-    patterns: Vec<(Vec<Vec<Key>>, SparsityPattern)>,
+    patterns: Vec<(Vec<(Vec<Key>, usize)>, SparsityPattern)>,
     analyses: usize,
     /// The map's chain, for back-propagation (`apply`, `explicit_and_backpropagate`).
     chain: Option<Chain>,
@@ -285,7 +285,13 @@ impl CorrectionEngine {
             lines.push(fit_line_at(&values.poses, &c.a)?);
             lines.push(fit_line_at(&values.poses, &c.b)?);
         }
-        let key: Vec<Vec<Key>> = human.iter().map(|f| f.keys().to_vec()).collect();
+        // The structure: each factor's keys and rows (a colocation and a collinear statement on
+        // the same observations share the keys but not the rows, and a wide factor's rows are
+        // registered in the pattern).
+        let key: Vec<(Vec<Key>, usize)> = human
+            .iter()
+            .map(|f| (f.keys().to_vec(), f.residual_dim()))
+            .collect();
         self.graph.truncate(self.base_factors);
         for _ in 0..lines.len() {
             self.graph.add_line();
@@ -410,6 +416,57 @@ mod tests {
         // The base factors' chi2 alone is what the map's measurements say of the result.
         let base = engine.base_chi2(&v2.poses).unwrap();
         assert!(base <= r2.final_chi2 + 1e-12);
+    }
+
+    /// A colocation and a collinear statement on the same observations share their factors'
+    /// keys but not their rows: each gets its own analysis, and one solved after the other on
+    /// one engine gives what a fresh engine gives (the cache once handed the second the first's
+    /// pattern: a stale row of the wide factor, or an index past its end).
+    #[test]
+    fn the_same_observations_in_another_mode_get_their_own_pattern() {
+        let (_, truth, _, _) = two_laps();
+        // More poses on each side than WIDE_KEYS: the relation factor is wide.
+        let seen = |i: usize| {
+            let x = truth[i];
+            let pts: Vec<[f64; 2]> = (0..5)
+                .map(|k| {
+                    x.inverse()
+                        .transform_point([x.x - 0.4 + 0.2 * k as f64, 0.0])
+                })
+                .collect();
+            (i, pts)
+        };
+        let spec = |mode| CorrectionSpec {
+            mode,
+            a: (1..13).map(seen).collect(),
+            b: (21..33).map(seen).collect(),
+        };
+        assert!(spec(RelationMode::Collinear).a.len() > crate::factors::WIDE_KEYS);
+        let mut start = truth.clone();
+        for p in start.iter_mut().skip(20) {
+            p.theta += 0.05;
+            p.y += 0.1;
+        }
+        let w = weights();
+        for (first, second) in [
+            (RelationMode::Colocation, RelationMode::Collinear),
+            (RelationMode::Collinear, RelationMode::Colocation),
+        ] {
+            let mut engine = CorrectionEngine::new(two_laps().0).unwrap();
+            engine
+                .solve(start.clone(), &[spec(first)], &w, &params())
+                .unwrap();
+            let (v, r) = engine
+                .solve(start.clone(), &[spec(second)], &w, &params())
+                .unwrap();
+            assert_eq!(engine.analyses(), 2, "{second:?} after {first:?}");
+            let mut fresh = CorrectionEngine::new(two_laps().0).unwrap();
+            let (vf, rf) = fresh
+                .solve(start.clone(), &[spec(second)], &w, &params())
+                .unwrap();
+            assert_eq!(r.final_chi2.to_bits(), rf.final_chi2.to_bits());
+            assert_eq!(v.poses, vf.poses);
+        }
     }
 
     #[test]
