@@ -155,12 +155,15 @@ pub fn fit_line_at(poses: &[Pose2], set: &[PoseObservations]) -> Result<Line2> {
 }
 
 /// The map's relative-pose factors, held once, and the joint solve with human corrections.
+/// The human part's structure: each factor's keys and rows.
+type Structure = Vec<(Vec<Key>, usize)>;
+
 #[derive(Debug)]
 pub struct CorrectionEngine {
     graph: FactorGraph,
     base_factors: usize,
     /// Recently used patterns, most recent last, keyed by the human part's structure.
-    patterns: Vec<(Vec<(Vec<Key>, usize)>, SparsityPattern)>,
+    patterns: Vec<(Structure, SparsityPattern)>,
     analyses: usize,
     /// The map's chain, for back-propagation (`apply`, `explicit_and_backpropagate`).
     chain: Option<Chain>,
@@ -288,7 +291,7 @@ impl CorrectionEngine {
         // The structure: each factor's keys and rows (a colocation and a collinear statement on
         // the same observations share the keys but not the rows, and a wide factor's rows are
         // registered in the pattern).
-        let key: Vec<(Vec<Key>, usize)> = human
+        let key: Structure = human
             .iter()
             .map(|f| (f.keys().to_vec(), f.residual_dim()))
             .collect();
