@@ -109,7 +109,9 @@ def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
     squared disagreement. Only the heading: a scan match along a corridor or among repeated
     structure can be off by a metre along it while its turn is right, and heading faults (a
     gyro, a wheel slip while turning) are the ones that bend a whole map. A step is widened only
-    when the matches two steps apart across it confirm the fault (:func:`_confirmed`)."""
+    when the matches two steps apart across it confirm the fault (:func:`_confirmed`). A step
+    whose scans agree with it (distance at most ``config.odometry_fuse``) takes the
+    information-weighted mean of both turns, with the fused variance."""
     rows = _chain_rows(map)
     guesses = chain_steps(map.poses)
     has_edge = rows >= 0
@@ -144,6 +146,17 @@ def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
             info[row] = np.linalg.inv(odo_cov)
             measurements[row, 2] = found[k, 2]
             relaxed.append(int(row))
+        elif config.odometry_fuse > 0 and d2 <= config.odometry_fuse:
+            # The scans agree with the step within their noise: its turn becomes the
+            # information-weighted mean of the two (a slow bend or drift biases every step a
+            # little; the scans, unbiased, take a share of it out at each step).
+            s_var = float(cov[k, 2, 2])
+            gain = odo_var / (odo_var + s_var)
+            odo_cov = np.linalg.inv(info[row])
+            odo_cov[2, :] = odo_cov[:, 2] = 0.0
+            odo_cov[2, 2] = odo_var * s_var / (odo_var + s_var)
+            info[row] = np.linalg.inv(odo_cov)
+            measurements[row, 2] = map.measurements[row, 2] - gain * r
     if relaxed:
         steps = ", ".join(
             f"{int(map.edges[r, 0])}->{int(map.edges[r, 1])}" for r in relaxed[:8]
@@ -164,18 +177,19 @@ def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
     )
 
 
-_CACHE: dict[int, tuple[weakref.ref[Map], float, Map]] = {}
+_CACHE: dict[int, tuple[weakref.ref[Map], tuple[float, float], Map]] = {}
 
 
 def checked_map(map: Map, config: Config = DEFAULT) -> Map:
     """``map`` with its edges' information widened where the scans contradict the odometry
     (:func:`check_odometry`), computed once per map and threshold; ``map`` itself when the
     check is off. Same poses, points and edges: only the information differs."""
-    if config.odometry_check <= 0 or map.num_poses < 2:
+    if (config.odometry_check <= 0 and config.odometry_fuse <= 0) or map.num_poses < 2:
         return map
     key = id(map)
+    settings = (config.odometry_check, config.odometry_fuse)
     hit = _CACHE.get(key)
-    if hit is not None and hit[0]() is map and hit[1] == config.odometry_check:
+    if hit is not None and hit[0]() is map and hit[1] == settings:
         return hit[2]
     out = _derived_check(map, config)
     if out is None:
@@ -183,7 +197,7 @@ def checked_map(map: Map, config: Config = DEFAULT) -> Map:
         out = dataclasses.replace(
             map, measurements=check.measurements, information=check.information
         )
-    _CACHE[key] = (weakref.ref(map, partial(_forget, key)), config.odometry_check, out)
+    _CACHE[key] = (weakref.ref(map, partial(_forget, key)), settings, out)
     return out
 
 
