@@ -46,6 +46,13 @@ agree, and a loosely overlapping one that matched wrongly would veto a real faul
 degrees off)."""
 
 
+FUSE_OVERLAP = 0.5
+"""A step is fused with its scan match only when at least half of the scan's points paired: the
+fused turn trusts the match, and in clutter (Freiburg 079, where a quarter of the matches pair
+under 41% of their points) a loosely overlapping match can agree with the odometry within its
+noise and still be biased by what moved."""
+
+
 @dataclass(frozen=True)
 class OdometryCheck:
     """Per chain step k -> k+1 (``N - 1`` rows): whether the scans matched (``matched``), the
@@ -117,7 +124,7 @@ def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
     has_edge = rows >= 0
     guesses[has_edge] = map.measurements[rows[has_edge]]
     guesses = np.ascontiguousarray(guesses, dtype=np.float64)
-    matched, found, cov, _overlap = _core.match_consecutive(
+    matched, found, cov, overlap = _core.match_consecutive(
         np.ascontiguousarray(map.points), map.offsets, guesses, min_overlap=MIN_OVERLAP
     )
     info = map.information.copy()
@@ -146,7 +153,11 @@ def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
             info[row] = np.linalg.inv(odo_cov)
             measurements[row, 2] = found[k, 2]
             relaxed.append(int(row))
-        elif config.odometry_fuse > 0 and d2 <= config.odometry_fuse:
+        elif (
+            config.odometry_fuse > 0
+            and d2 <= config.odometry_fuse
+            and float(overlap[k]) >= FUSE_OVERLAP
+        ):
             # The scans agree with the step within their noise: its turn becomes the
             # information-weighted mean of the two (a slow bend or drift biases every step a
             # little; the scans, unbiased, take a share of it out at each step).
