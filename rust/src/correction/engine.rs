@@ -326,6 +326,18 @@ impl CorrectionEngine {
 mod tests {
     use super::*;
 
+    /// What pose `i` sees of the bottom wall y = 0: five points about it, in its own frame.
+    fn wall_seen_from(truth: &[Pose2], i: usize) -> PoseObservations {
+        let x = truth[i];
+        let pts: Vec<[f64; 2]> = (0..5)
+            .map(|k| {
+                x.inverse()
+                    .transform_point([x.x - 0.4 + 0.2 * k as f64, 0.0])
+            })
+            .collect();
+        (i, pts)
+    }
+
     /// A square corridor walked twice: the second lap's poses are the first's, and each pose
     /// sees the bottom wall y = 0 (as robot-frame points).
     fn two_laps() -> (
@@ -345,18 +357,8 @@ mod tests {
             .map(|&(i, j)| truth[i].between(truth[j]).to_array())
             .collect();
         let graph = FactorGraph::from_edges(n, &edges, &z, &vec![info; n - 1], 0).unwrap();
-        let seen = |i: usize| {
-            let x = truth[i];
-            let pts: Vec<[f64; 2]> = (0..5)
-                .map(|k| {
-                    x.inverse()
-                        .transform_point([x.x - 0.4 + 0.2 * k as f64, 0.0])
-                })
-                .collect();
-            (i, pts)
-        };
-        let a = (2..8).map(seen).collect();
-        let b = (22..28).map(seen).collect();
+        let a = (2..8).map(|i| wall_seen_from(&truth, i)).collect();
+        let b = (22..28).map(|i| wall_seen_from(&truth, i)).collect();
         (graph, truth, a, b)
     }
 
@@ -429,16 +431,7 @@ mod tests {
     fn the_same_observations_in_another_mode_get_their_own_pattern() {
         let (_, truth, _, _) = two_laps();
         // More poses on each side than WIDE_KEYS: the relation factor is wide.
-        let seen = |i: usize| {
-            let x = truth[i];
-            let pts: Vec<[f64; 2]> = (0..5)
-                .map(|k| {
-                    x.inverse()
-                        .transform_point([x.x - 0.4 + 0.2 * k as f64, 0.0])
-                })
-                .collect();
-            (i, pts)
-        };
+        let seen = |i: usize| wall_seen_from(&truth, i);
         let spec = |mode| CorrectionSpec {
             mode,
             a: (1..13).map(seen).collect(),
