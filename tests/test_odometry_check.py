@@ -18,6 +18,7 @@ from hitl_slam.sim.fault_models import damaged
 from hitl_slam.sim.odometry import relative_motions
 
 NO_FUSION = dataclasses.replace(DEFAULT, odometry_fuse=0.0)
+FUSION = dataclasses.replace(DEFAULT, odometry_fuse=9.0)
 
 
 @pytest.mark.parametrize(
@@ -91,7 +92,7 @@ def test_a_slow_bend_is_mostly_taken_out_where_it_came_in(seed: int, degrees: fl
     plain = check_odometry(m, NO_FUSION)
     assert plain.relaxed.size == 0
     assert np.array_equal(plain.measurements, m.measurements)
-    fused = check_odometry(m)
+    fused = check_odometry(m, FUSION)
     assert fused.relaxed.size == 0
     was, noise_was = bend_left(m.measurements)
     left, noise_left = bend_left(fused.measurements)

@@ -85,10 +85,11 @@ class Config:
     # instead of spreading it over the loop
     odometry_check: float = 10.83
     # and every other step whose scans agree with it (squared Mahalanobis distance of the
-    # heading at most this; 0 = off) gets the information-weighted mean of the two turns: a slow
-    # bend or drift, too small per step to contradict any one step, is then mostly taken out
-    # where it came in (docs/ALGORITHM.md §I.5)
-    odometry_fuse: float = 9.0
+    # heading at most this, e.g. 9; 0 = off, the default) gets the information-weighted mean of
+    # the two turns: a slow bend or drift, too small per step to contradict any one step, is
+    # then partly taken out where it came in. Off: it made fewer corrections worse in the full
+    # evaluation but Freiburg 079 worse in the standard one (docs/ALGORITHM.md §I.5)
+    odometry_fuse: float = 0.0
     # consistency guard: a correction after which the map's own measurements (its relative-pose
     # factors) score a chi2 above this quantile of chi2 with 3 x edges dof is tried again with
     # the passes nearest the drawings, then refused with the figures (0 = off)
