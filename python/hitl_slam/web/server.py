@@ -94,11 +94,7 @@ def _front_end(
 
     # A bag's own SLAM trajectory is not where the front end starts: its odometry is.
     if is_rosbag(source):
-        bag = (
-            dataclasses.replace(bag, map_frame=None)
-            if bag is not None
-            else BagOptions(map_frame="")
-        )
+        bag = dataclasses.replace(bag or BagOptions(), map_frame=None)
     raw = load_map(source, max_range=max_range, bag=bag)
     duration = None
     if raw.timestamps is not None and raw.num_poses > 1:

@@ -78,6 +78,8 @@ pub(super) struct ChordWork {
     p: Vec<f64>,
     q: Vec<f64>,
     ax: Vec<f64>,
+    /// `mu D`, the damping's diagonal.
+    damp: Vec<f64>,
 }
 
 /// `A^-1 x` in place for the columns of `x` (n rows each), through A's numeric factor.
@@ -93,6 +95,17 @@ impl SparsityPattern {
         self.h[self.col_ptr[k + 1] - 1] + self.wide.diagonal(k)
     }
 
+    /// Entry k of the damping matrix D: `diag(H)` clamped to `[1e-6, 1e32]` (`diagonal`,
+    /// Marquardt's scaling) or 1.
+    #[inline]
+    fn damping_weight(&self, k: usize, diagonal: bool) -> f64 {
+        if diagonal {
+            self.hessian_diagonal(k).clamp(1e-6, 1e32)
+        } else {
+            1.0
+        }
+    }
+
     /// Solves `(H + mu D) delta = -g` where `D = diag(H)` clamped to `[d_min, d_max]`
     /// (`diagonal = true`, Marquardt's scaling) or the identity. `mu = 0` is Gauss-Newton.
     /// Returns `Ok(false)` when the damped matrix is not numerically positive definite.
@@ -102,11 +115,7 @@ impl SparsityPattern {
         self.damped.copy_from_slice(&self.h);
         if mu > 0.0 {
             for k in 0..self.n {
-                let d = if diagonal {
-                    self.hessian_diagonal(k).clamp(1e-6, 1e32)
-                } else {
-                    1.0
-                };
+                let d = self.damping_weight(k, diagonal);
                 let p = self.col_ptr[k + 1] - 1;
                 self.damped[p] += mu * d;
             }
@@ -161,23 +170,20 @@ impl SparsityPattern {
             return None;
         }
         let n = self.n;
-        let damp: Vec<f64> = if mu > 0.0 {
-            (0..n)
-                .map(|k| {
-                    mu * if diagonal {
-                        self.hessian_diagonal(k).clamp(1e-6, 1e32)
-                    } else {
-                        1.0
-                    }
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
-        let ChordWork { r, z, p, q, ax } = work;
-        for v in [&mut *r, &mut *z, &mut *p, &mut *q, &mut *ax] {
+        let ChordWork {
+            r,
+            z,
+            p,
+            q,
+            ax,
+            damp,
+        } = work;
+        for v in [&mut *r, &mut *z, &mut *p, &mut *q, &mut *ax, &mut *damp] {
             v.clear();
             v.resize(n, 0.0);
+        }
+        for (k, d) in damp.iter_mut().enumerate() {
+            *d = mu * self.damping_weight(k, diagonal);
         }
         let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
         delta.fill(0.0);
@@ -267,11 +273,7 @@ impl SparsityPattern {
             .iter()
             .enumerate()
             .map(|(k, d)| {
-                let dk = if diagonal {
-                    self.hessian_diagonal(k).clamp(1e-6, 1e32)
-                } else {
-                    1.0
-                };
+                let dk = self.damping_weight(k, diagonal);
                 dk * d * d
             })
             .sum()
@@ -362,7 +364,7 @@ mod tests {
             sym_upper_mul_add(&p.col_ptr, &p.row_idx, &p.h, 1.0, &delta, &mut r);
             let mut dd = 0.0;
             for k in 0..p.n {
-                let d = mu * p.hessian_diagonal(k).clamp(1e-6, 1e32);
+                let d = mu * p.damping_weight(k, true);
                 r[k] += d * delta[k];
                 dd += d * delta[k] * delta[k];
             }
