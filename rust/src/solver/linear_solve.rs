@@ -252,13 +252,24 @@ impl SparsityPattern {
     /// on the cached symbolic analysis; false when it is not positive definite.
     fn factorize(&mut self, damped: bool) -> bool {
         let n = self.n;
-        let sym = SymbolicSparseColMatRef::new_checked(n, n, &self.col_ptr, None, &self.row_idx);
         let values = if damped { &self.damped } else { &self.h };
+        let (col_ptr, row_idx, values, side) = if self.lower.is_empty() {
+            (
+                &self.col_ptr[..],
+                &self.row_idx[..],
+                &values[..],
+                Side::Upper,
+            )
+        } else {
+            let (col_ptr, row_idx, values) = self.lower.gather(values);
+            (col_ptr, row_idx, values, Side::Lower)
+        };
+        let sym = SymbolicSparseColMatRef::new_checked(n, n, col_ptr, None, row_idx);
         self.symbolic
             .factorize_numeric_llt::<f64>(
                 &mut self.l_values,
                 SparseColMatRef::new(sym, values),
-                Side::Upper,
+                side,
                 LltRegularization::default(),
                 Par::Seq,
                 MemStack::new(&mut self.mem),
@@ -390,9 +401,16 @@ mod tests {
 
     #[test]
     fn damped_solve_solves_the_system() {
-        for &n in &[5usize, 60, 400] {
+        // Both kernels: the simplicial one on the upper triangle (5 poses), the supernodal one
+        // on the lower (1100 poses: over SUPERNODAL_MIN_DIM unknowns).
+        for &n in &[5usize, 60, 400, 1100] {
             let (mut g, values) = ring(n);
             let (factors, p) = g.parts().unwrap();
+            let supernodal = matches!(p.symbolic.raw(), SymbolicCholeskyRaw::Supernodal(_));
+            if n == 5 || n == 1100 {
+                assert_eq!(supernodal, n == 1100, "n {n}");
+            }
+            assert_eq!(p.lower.is_empty(), !supernodal, "n {n}");
             p.linearize(factors, &values, &[]);
             for &(mu, diag) in &[(0.0, false), (1e-3, true), (10.0, false)] {
                 let mut delta = vec![0.0; p.n];

@@ -14,7 +14,8 @@
 
 use faer::dyn_stack::{MemBuffer, StackReq};
 use faer::sparse::linalg::cholesky::{
-    factorize_symbolic_cholesky, CholeskySymbolicParams, SymbolicCholesky, SymmetricOrdering,
+    factorize_symbolic_cholesky, CholeskySymbolicParams, SymbolicCholesky, SymbolicCholeskyRaw,
+    SymmetricOrdering,
 };
 use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::SymbolicSparseColMatRef;
@@ -56,6 +57,64 @@ pub struct SparsityPattern {
     pub(super) max_jac: usize,
     /// The rows of wide factors: `H = h + U U^T`.
     pub(super) wide: LowRank,
+    /// The lower triangle the supernodal factorization reads (empty for the simplicial one).
+    pub(super) lower: LowerTriangle,
+}
+
+/// The lower triangle of `H`'s upper CSC, for faer's supernodal Cholesky, which reads the
+/// lower triangle and would otherwise transpose the upper one (structure and values) at every
+/// factorization: here the structure is built once and each factorization gathers the values.
+#[derive(Default)]
+pub(super) struct LowerTriangle {
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+    /// Position in the upper CSC of each lower entry.
+    source: Vec<usize>,
+    values: Vec<f64>,
+}
+
+impl LowerTriangle {
+    /// The transpose of the upper CSC `(col_ptr, row_idx)` of an n x n matrix. Scanning the
+    /// upper columns in order leaves each lower column's rows sorted.
+    pub(super) fn of_upper(n: usize, col_ptr: &[usize], row_idx: &[usize]) -> Self {
+        let mut lower_ptr = vec![0usize; n + 1];
+        for &r in row_idx {
+            lower_ptr[r + 1] += 1;
+        }
+        for k in 0..n {
+            lower_ptr[k + 1] += lower_ptr[k];
+        }
+        let mut next = lower_ptr.clone();
+        let mut lower_idx = vec![0usize; row_idx.len()];
+        let mut source = vec![0usize; row_idx.len()];
+        for c in 0..n {
+            for p in col_ptr[c]..col_ptr[c + 1] {
+                let r = row_idx[p];
+                lower_idx[next[r]] = c;
+                source[next[r]] = p;
+                next[r] += 1;
+            }
+        }
+        Self {
+            col_ptr: lower_ptr,
+            row_idx: lower_idx,
+            values: vec![0.0; source.len()],
+            source,
+        }
+    }
+
+    pub(super) fn is_empty(&self) -> bool {
+        self.source.is_empty()
+    }
+
+    /// The lower triangle (column pointers, row indices, values), its values gathered from
+    /// the upper CSC's `upper`.
+    pub(super) fn gather(&mut self, upper: &[f64]) -> (&[usize], &[usize], &[f64]) {
+        for (v, &p) in self.values.iter_mut().zip(&self.source) {
+            *v = upper[p];
+        }
+        (&self.col_ptr, &self.row_idx, &self.values)
+    }
 }
 
 pub(super) fn block_of(pose_block: &[usize], line_block: &[usize], key: Key) -> usize {
@@ -313,6 +372,11 @@ impl SparsityPattern {
             .map_err(|_| HitlError::Solver("out of memory for the Cholesky workspace".into()))?;
         let nnz = row_idx.len();
         let l_len = symbolic.len_val();
+        let lower = if matches!(symbolic.raw(), SymbolicCholeskyRaw::Supernodal(_)) {
+            LowerTriangle::of_upper(n, &col_ptr, &row_idx)
+        } else {
+            LowerTriangle::default()
+        };
         Ok(Self {
             pose_block,
             line_block,
@@ -333,6 +397,7 @@ impl SparsityPattern {
             max_residual,
             max_jac,
             wide,
+            lower,
         })
     }
 
@@ -378,6 +443,19 @@ impl std::fmt::Debug for SparsityPattern {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_lower_triangle_is_the_transpose_of_the_upper() {
+        // Upper CSC of a 4 x 4 symmetric matrix with a few off-diagonal entries.
+        let col_ptr = [0, 1, 3, 4, 7];
+        let row_idx = [0, 0, 1, 2, 1, 2, 3];
+        let upper = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0];
+        let mut lower = super::LowerTriangle::of_upper(4, &col_ptr, &row_idx);
+        let (lp, li, lv) = lower.gather(&upper);
+        assert_eq!(lp, &[0, 2, 4, 6, 7]);
+        assert_eq!(li, &[0, 1, 1, 3, 2, 3, 3]);
+        assert_eq!(lv, &[1.0, 2.0, 3.0, 5.0, 4.0, 6.0, 7.0]);
+    }
+
     use super::*;
     use crate::solver::test_problems::{corrected, dense_hessian, Relations};
 
