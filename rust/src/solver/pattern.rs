@@ -74,8 +74,72 @@ pub(super) struct LowerTriangle {
 }
 
 impl LowerTriangle {
-    /// The transpose of the upper CSC `(col_ptr, row_idx)` of an n x n matrix. Scanning the
-    /// upper columns in order leaves each lower column's rows sorted.
+    /// The lower triangle of the pattern's upper CSC `col_ptr` (built from the block pattern:
+    /// block column c holds the rows of the blocks `upper_idx[upper_ptr[c]..upper_ptr[c + 1]]`,
+    /// then its own diagonal block's upper triangle). Written column by column in order, with
+    /// each entry's upper position computed rather than searched.
+    pub(super) fn of_blocks(
+        block_offset: &[usize],
+        block_dim: &[usize],
+        upper_ptr: &[usize],
+        upper_idx: &[usize],
+        col_ptr: &[usize],
+    ) -> Self {
+        let nb = block_dim.len();
+        let n = col_ptr.len() - 1;
+        let nnz = col_ptr[n];
+        // Block transpose: for block r, the blocks c > r whose column holds it, with the offset
+        // of r's rows within c's columns.
+        let mut t_ptr = vec![0usize; nb + 1];
+        for &r in &upper_idx[..upper_ptr[nb]] {
+            t_ptr[r + 1] += 1;
+        }
+        for b in 0..nb {
+            t_ptr[b + 1] += t_ptr[b];
+        }
+        let mut next = t_ptr[..nb].to_vec();
+        let mut t_entry = vec![(0usize, 0usize); upper_ptr[nb]];
+        for c in 0..nb {
+            let mut before = 0;
+            for &r in &upper_idx[upper_ptr[c]..upper_ptr[c + 1]] {
+                t_entry[next[r]] = (c, before);
+                next[r] += 1;
+                before += block_dim[r];
+            }
+        }
+        let mut lower_ptr = Vec::with_capacity(n + 1);
+        let mut lower_idx = Vec::with_capacity(nnz);
+        let mut source = Vec::with_capacity(nnz);
+        lower_ptr.push(0);
+        for r in 0..nb {
+            let (off, dim) = (block_offset[r], block_dim[r]);
+            for k in 0..dim {
+                // The diagonal block: upper column off + i ends with rows off..=off + i.
+                for i in k..dim {
+                    lower_idx.push(off + i);
+                    source.push(col_ptr[off + i + 1] - (i + 1) + k);
+                }
+                for &(c, before) in &t_entry[t_ptr[r]..t_ptr[r + 1]] {
+                    let c_off = block_offset[c];
+                    for i in 0..block_dim[c] {
+                        lower_idx.push(c_off + i);
+                        source.push(col_ptr[c_off + i] + before + k);
+                    }
+                }
+                lower_ptr.push(lower_idx.len());
+            }
+        }
+        Self {
+            col_ptr: lower_ptr,
+            row_idx: lower_idx,
+            values: vec![0.0; nnz],
+            source,
+        }
+    }
+
+    /// The transpose of the upper CSC `(col_ptr, row_idx)` of an n x n matrix, entry by entry
+    /// (the reference for [`Self::of_blocks`]).
+    #[cfg(test)]
     pub(super) fn of_upper(n: usize, col_ptr: &[usize], row_idx: &[usize]) -> Self {
         let mut lower_ptr = vec![0usize; n + 1];
         for &r in row_idx {
@@ -157,41 +221,44 @@ impl SparsityPattern {
         // 2. Block adjacency (both directions, no diagonal) as CSR: through the block -> factor
         //    incidence, with a marker per block instead of a global sort (human corrections add
         //    factors over dozens of poses, whose pair lists would dominate).
-        let mut factor_blocks: Vec<Vec<usize>> = factors
-            .iter()
-            .map(|f| {
+        // The free blocks of each factor, flat (factor fi's are fb_idx[fb_ptr[fi]..fb_ptr[fi+1]]).
+        let mut fb_ptr = Vec::with_capacity(factors.len() + 1);
+        let mut fb_idx = Vec::with_capacity(2 * factors.len());
+        fb_ptr.push(0usize);
+        for f in factors {
+            fb_idx.extend(
                 f.keys()
                     .iter()
                     .map(|&k| block_of(&natural_pose, &natural_line, k))
-                    .filter(|&b| b != NO_BLOCK)
-                    .collect()
-            })
-            .collect();
+                    .filter(|&b| b != NO_BLOCK),
+            );
+            fb_ptr.push(fb_idx.len());
+        }
+        let factor_blocks = |fi: usize| &fb_idx[fb_ptr[fi]..fb_ptr[fi + 1]];
         // Wide factors add no couplings to the pattern (see the module docs). Only when each of
         // their variables also occurs in a sparse factor, though: a variable seen by wide factors
         // alone would have an empty diagonal in H_s, and H_s + mu D could be singular (always,
         // for Gauss-Newton) even where H is not; such a factor stays in the sparse part.
         let mut covered = vec![false; nb];
-        for (f, bs) in factors.iter().zip(&factor_blocks) {
+        for (fi, f) in factors.iter().enumerate() {
             if !f.is_wide() {
-                for &b in bs {
+                for &b in factor_blocks(fi) {
                     covered[b] = true;
                 }
             }
         }
         let is_wide: Vec<bool> = factors
             .iter()
-            .zip(&factor_blocks)
-            .map(|(f, bs)| f.is_wide() && !bs.is_empty() && bs.iter().all(|&b| covered[b]))
+            .enumerate()
+            .map(|(fi, f)| {
+                let bs = factor_blocks(fi);
+                f.is_wide() && !bs.is_empty() && bs.iter().all(|&b| covered[b])
+            })
             .collect();
-        for (bs, &w) in factor_blocks.iter_mut().zip(&is_wide) {
-            if w {
-                bs.clear();
-            }
-        }
+        // Block -> sparse factor incidence (wide factors left out).
         let mut inc_ptr = vec![0usize; nb + 1];
-        for bs in &factor_blocks {
-            for &b in bs {
+        for fi in (0..factors.len()).filter(|&fi| !is_wide[fi]) {
+            for &b in factor_blocks(fi) {
                 inc_ptr[b + 1] += 1;
             }
         }
@@ -200,8 +267,8 @@ impl SparsityPattern {
         }
         let mut fill = inc_ptr.clone();
         let mut inc_idx = vec![0usize; inc_ptr[nb]];
-        for (fi, bs) in factor_blocks.iter().enumerate() {
-            for &b in bs {
+        for fi in (0..factors.len()).filter(|&fi| !is_wide[fi]) {
+            for &b in factor_blocks(fi) {
                 inc_idx[fill[b]] = fi;
                 fill[b] += 1;
             }
@@ -214,7 +281,7 @@ impl SparsityPattern {
             mark[a] = a;
             let begin = adj_idx.len();
             for &fi in &inc_idx[inc_ptr[a]..inc_ptr[a + 1]] {
-                for &b in &factor_blocks[fi] {
+                for &b in factor_blocks(fi) {
                     if mark[b] != a {
                         mark[b] = a;
                         adj_idx.push(b);
@@ -285,10 +352,13 @@ impl SparsityPattern {
         }
 
         // 5. Slots: where each factor's Hessian blocks land.
-        let block_slot = |r: usize, c: usize, k: usize| -> Result<usize> {
-            let col = block_offset[c] + k;
+        // Where column k of block c's rows from block r begin, for each k: one search per pair.
+        let push_slots = |r: usize, c: usize, slots: &mut Vec<usize>| -> Result<()> {
+            let dim = block_dim[c];
+            let first = block_offset[c];
             if r == c {
-                return Ok(col_ptr[col + 1] - (k + 1));
+                slots.extend((0..dim).map(|k| col_ptr[first + k + 1] - (k + 1)));
+                return Ok(());
             }
             let rows = &upper_idx[upper_ptr[c]..upper_ptr[c + 1]];
             let x = rows.binary_search(&r).map_err(|_| {
@@ -297,7 +367,8 @@ impl SparsityPattern {
                 ))
             })?;
             let before: usize = rows[..x].iter().map(|&b| block_dim[b]).sum();
-            Ok(col_ptr[col] + before)
+            slots.extend((0..dim).map(|k| col_ptr[first + k] + before));
+            Ok(())
         };
         let mut factor_slots = Vec::with_capacity(factors.len() + 1);
         let mut slots = Vec::new();
@@ -330,9 +401,7 @@ impl SparsityPattern {
                         continue;
                     }
                     let (r, c) = if bp <= bq { (bp, bq) } else { (bq, bp) };
-                    for k in 0..block_dim[c] {
-                        slots.push(block_slot(r, c, k)?);
-                    }
+                    push_slots(r, c, &mut slots)?;
                 }
             }
         }
@@ -373,7 +442,7 @@ impl SparsityPattern {
         let nnz = row_idx.len();
         let l_len = symbolic.len_val();
         let lower = if matches!(symbolic.raw(), SymbolicCholeskyRaw::Supernodal(_)) {
-            LowerTriangle::of_upper(n, &col_ptr, &row_idx)
+            LowerTriangle::of_blocks(&block_offset, &block_dim, &upper_ptr, &upper_idx, &col_ptr)
         } else {
             LowerTriangle::default()
         };
@@ -458,6 +527,46 @@ mod tests {
 
     use super::*;
     use crate::solver::test_problems::{corrected, dense_hessian, Relations};
+
+    #[test]
+    fn the_block_built_lower_triangle_equals_the_transposed_upper() {
+        // Poses (3 x 3 blocks) and lines (2 x 2), sparse and wide factors.
+        for (n, relations) in [(50, Relations::Narrow), (60, Relations::Wide)] {
+            let (mut g, _) = corrected(n, relations, false);
+            let p = g.pattern().unwrap();
+            let nb = p.block_dim.len();
+            assert!(p.block_dim.contains(&2) && p.block_dim.contains(&3));
+            // The block pattern, recovered from the scalar one: the rows of each block's
+            // first column that are not its own.
+            let mut upper_ptr = vec![0usize];
+            let mut upper_idx = Vec::new();
+            for c in 0..nb {
+                let col = p.block_offset[c];
+                let mut last = NO_BLOCK;
+                for &row in &p.row_idx[p.col_ptr[col]..p.col_ptr[col + 1]] {
+                    let b = p.block_offset.partition_point(|&o| o <= row) - 1;
+                    if b != c && b != last {
+                        upper_idx.push(b);
+                        last = b;
+                    }
+                }
+                upper_ptr.push(upper_idx.len());
+            }
+            let upper: Vec<f64> = (0..p.row_idx.len()).map(|k| k as f64).collect();
+            let mut fast = LowerTriangle::of_blocks(
+                &p.block_offset,
+                &p.block_dim,
+                &upper_ptr,
+                &upper_idx,
+                &p.col_ptr,
+            );
+            let mut slow = LowerTriangle::of_upper(p.n, &p.col_ptr, &p.row_idx);
+            let (a, b) = (fast.gather(&upper), slow.gather(&upper));
+            assert_eq!(a.0, b.0, "n {n}: column pointers");
+            assert_eq!(a.1, b.1, "n {n}: row indices");
+            assert_eq!(a.2, b.2, "n {n}: values");
+        }
+    }
 
     #[test]
     fn relations_over_many_poses_are_wide() {
