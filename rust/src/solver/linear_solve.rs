@@ -88,6 +88,17 @@ fn solve_in_place(llt: LltRef<'_, usize, f64>, mem: &mut MemBuffer, x: &mut [f64
     llt.solve_in_place_with_conj(Conj::No, rhs, Par::Seq, MemStack::new(mem));
 }
 
+/// Entry of the damping matrix D for a diagonal entry `h_kk` of the full H: `h_kk` clamped to
+/// `[1e-6, 1e32]` (`diagonal`, Marquardt's scaling) or 1.
+#[inline]
+fn damping_weight(h_kk: f64, diagonal: bool) -> f64 {
+    if diagonal {
+        h_kk.clamp(1e-6, 1e32)
+    } else {
+        1.0
+    }
+}
+
 impl SparsityPattern {
     /// Diagonal entry k of the full `H = H_s + U U^T`.
     #[inline]
@@ -99,11 +110,7 @@ impl SparsityPattern {
     /// Marquardt's scaling) or 1.
     #[inline]
     fn damping_weight(&self, k: usize, diagonal: bool) -> f64 {
-        if diagonal {
-            self.hessian_diagonal(k).clamp(1e-6, 1e32)
-        } else {
-            1.0
-        }
+        damping_weight(self.hessian_diagonal(k), diagonal)
     }
 
     /// Solves `(H + mu D) delta = -g` where `D = diag(H)` clamped to `[d_min, d_max]`
@@ -112,19 +119,25 @@ impl SparsityPattern {
     /// With wide factors, `H = H_s + U U^T` and the sparse factor is of `A = H_s + mu D` alone
     /// (Woodbury, see the module docs); the solution is that of the full system either way.
     pub fn solve_damped(&mut self, mu: f64, diagonal: bool, delta: &mut [f64]) -> Result<bool> {
-        self.damped.copy_from_slice(&self.h);
-        if mu > 0.0 {
-            for k in 0..self.n {
-                let d = self.damping_weight(k, diagonal);
-                let p = self.col_ptr[k + 1] - 1;
-                self.damped[p] += mu * d;
+        if self.wide.rank() > 0 || !self.uses_lower() {
+            // The upper triangle of H_s + mu D: what the simplicial kernel factorizes, and what
+            // the Woodbury refinement multiplies by. (The supernodal kernel's lower triangle is
+            // gathered from H_s and damped in `factorize`.)
+            self.damped.resize(self.h.len(), 0.0);
+            self.damped.copy_from_slice(&self.h);
+            if mu > 0.0 {
+                for k in 0..self.n {
+                    let d = self.damping_weight(k, diagonal);
+                    let p = self.col_ptr[k + 1] - 1;
+                    self.damped[p] += mu * d;
+                }
             }
         }
         for (x, g) in delta.iter_mut().zip(&self.g) {
             *x = -g;
         }
         let n = self.n;
-        if !self.factorize(true) {
+        if !self.factorize(Some((mu, diagonal))) {
             return Ok(false);
         }
         let llt = LltRef::new(&self.symbolic, &self.l_values);
@@ -248,20 +261,25 @@ impl SparsityPattern {
         })
     }
 
-    /// Numeric Cholesky of the damped (`damped`) or the undamped sparse part into `l_values`,
-    /// on the cached symbolic analysis; false when it is not positive definite.
-    fn factorize(&mut self, damped: bool) -> bool {
+    /// Numeric Cholesky of the sparse part `H_s + mu D` (`damping = Some((mu, diagonal))`, with
+    /// `damped` filled for the upper triangle) or of `H_s` (`None`) into `l_values`, on the
+    /// cached symbolic analysis; false when it is not positive definite.
+    fn factorize(&mut self, damping: Option<(f64, bool)>) -> bool {
         let n = self.n;
-        let values = if damped { &self.damped } else { &self.h };
-        let (col_ptr, row_idx, values, side) = if self.lower.is_empty() {
-            (
-                &self.col_ptr[..],
-                &self.row_idx[..],
-                &values[..],
-                Side::Upper,
-            )
+        self.ensure_lower();
+        let (col_ptr, row_idx, values, side) = if !self.uses_lower() {
+            let values = if damping.is_some() {
+                &self.damped[..]
+            } else {
+                &self.h[..]
+            };
+            (&self.col_ptr[..], &self.row_idx[..], values, Side::Upper)
         } else {
-            let (col_ptr, row_idx, values) = self.lower.gather(values);
+            let (h, upper_ptr, wide) = (&self.h, &self.col_ptr, &self.wide);
+            let weight = |k: usize, diagonal: bool| {
+                damping_weight(h[upper_ptr[k + 1] - 1] + wide.diagonal(k), diagonal)
+            };
+            let (col_ptr, row_idx, values) = self.lower.gather(h, damping, weight);
             (col_ptr, row_idx, values, Side::Lower)
         };
         let sym = SymbolicSparseColMatRef::new_checked(n, n, col_ptr, None, row_idx);
@@ -300,7 +318,7 @@ impl SparsityPattern {
                 "the information matrix is singular at this solution; marginals are undefined (is every pose constrained?)".into(),
             )
         };
-        if !self.factorize(false) {
+        if !self.factorize(None) {
             return Err(singular());
         }
         if self.wide.rank() == 0 {
@@ -336,6 +354,17 @@ mod tests {
     use crate::solver::test_problems::{corrected, dense_hessian, ring, Relations};
     use crate::values::Key;
     use faer::sparse::linalg::cholesky::SymbolicCholeskyRaw;
+
+    /// The upper triangle of `H_s + mu D`.
+    fn damped_upper(p: &SparsityPattern, mu: f64, diagonal: bool) -> Vec<f64> {
+        let mut v = p.h.clone();
+        if mu > 0.0 {
+            for k in 0..p.n {
+                v[p.col_ptr[k + 1] - 1] += mu * p.damping_weight(k, diagonal);
+            }
+        }
+        v
+    }
 
     fn mul_upper(p: &SparsityPattern, vals: &[f64], x: &[f64]) -> Vec<f64> {
         let mut y = vec![0.0; p.n];
@@ -410,12 +439,12 @@ mod tests {
             if n == 5 || n == 1100 {
                 assert_eq!(supernodal, n == 1100, "n {n}");
             }
-            assert_eq!(p.lower.is_empty(), !supernodal, "n {n}");
+            assert_eq!(p.uses_lower(), supernodal, "n {n}");
             p.linearize(factors, &values, &[]);
             for &(mu, diag) in &[(0.0, false), (1e-3, true), (10.0, false)] {
                 let mut delta = vec![0.0; p.n];
                 assert!(p.solve_damped(mu, diag, &mut delta).unwrap());
-                let hd = mul_upper(p, &p.damped, &delta);
+                let hd = mul_upper(p, &damped_upper(p, mu, diag), &delta);
                 let err = hd
                     .iter()
                     .zip(&p.g)
@@ -514,7 +543,7 @@ mod tests {
             }
             let gmax = pn.g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             for (name, d) in [("wide", &dwn), ("narrow", &dn)] {
-                let hd = mul_upper(pn, &pn.damped, d);
+                let hd = mul_upper(pn, &damped_upper(pn, mu, diag), d);
                 let res = hd
                     .iter()
                     .zip(&pn.g)

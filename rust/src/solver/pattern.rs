@@ -47,7 +47,8 @@ pub struct SparsityPattern {
     pub(super) factor_slots: Vec<usize>,
     pub(super) slots: Vec<usize>,
     pub(super) symbolic: SymbolicCholesky<usize>,
-    /// Undamped `H` values (upper CSC), gradient `J^T r`, and scratch for the damped copy.
+    /// Undamped `H` values (upper CSC), gradient `J^T r`, and the upper triangle of
+    /// `H + mu D` (filled only where it is used: the simplicial kernel and Woodbury's refinement).
     pub(crate) h: Vec<f64>,
     pub(crate) g: Vec<f64>,
     pub(super) damped: Vec<f64>,
@@ -57,8 +58,11 @@ pub struct SparsityPattern {
     pub(super) max_jac: usize,
     /// The rows of wide factors: `H = h + U U^T`.
     pub(super) wide: LowRank,
-    /// The lower triangle the supernodal factorization reads (empty for the simplicial one).
+    /// The lower triangle the supernodal factorization reads, built at the first factorization
+    /// (solves that converge at their start never need it) from the block pattern kept here:
+    /// `(block column pointers, block rows)`, None for the simplicial kernel.
     pub(super) lower: LowerTriangle,
+    lower_blocks: Option<(Vec<usize>, Vec<usize>)>,
 }
 
 /// The lower triangle of `H`'s upper CSC, for faer's supernodal Cholesky, which reads the
@@ -68,8 +72,9 @@ pub struct SparsityPattern {
 pub(super) struct LowerTriangle {
     col_ptr: Vec<usize>,
     row_idx: Vec<usize>,
-    /// Position in the upper CSC of each lower entry.
-    source: Vec<usize>,
+    /// Position in the upper CSC of each lower entry (32 bits: half the memory of an index;
+    /// patterns with more entries go without a lower triangle).
+    source: Vec<u32>,
     values: Vec<f64>,
 }
 
@@ -117,13 +122,13 @@ impl LowerTriangle {
                 // The diagonal block: upper column off + i ends with rows off..=off + i.
                 for i in k..dim {
                     lower_idx.push(off + i);
-                    source.push(col_ptr[off + i + 1] - (i + 1) + k);
+                    source.push((col_ptr[off + i + 1] - (i + 1) + k) as u32);
                 }
                 for &(c, before) in &t_entry[t_ptr[r]..t_ptr[r + 1]] {
                     let c_off = block_offset[c];
                     for i in 0..block_dim[c] {
                         lower_idx.push(c_off + i);
-                        source.push(col_ptr[c_off + i] + before + k);
+                        source.push((col_ptr[c_off + i] + before + k) as u32);
                     }
                 }
                 lower_ptr.push(lower_idx.len());
@@ -150,12 +155,12 @@ impl LowerTriangle {
         }
         let mut next = lower_ptr.clone();
         let mut lower_idx = vec![0usize; row_idx.len()];
-        let mut source = vec![0usize; row_idx.len()];
+        let mut source = vec![0u32; row_idx.len()];
         for c in 0..n {
             for p in col_ptr[c]..col_ptr[c + 1] {
                 let r = row_idx[p];
                 lower_idx[next[r]] = c;
-                source[next[r]] = p;
+                source[next[r]] = p as u32;
                 next[r] += 1;
             }
         }
@@ -172,10 +177,22 @@ impl LowerTriangle {
     }
 
     /// The lower triangle (column pointers, row indices, values), its values gathered from
-    /// the upper CSC's `upper`.
-    pub(super) fn gather(&mut self, upper: &[f64]) -> (&[usize], &[usize], &[f64]) {
+    /// the upper CSC's `upper`, plus `mu weight(k, diagonal)` on diagonal entry k with
+    /// `damping = Some((mu, diagonal))`.
+    pub(super) fn gather(
+        &mut self,
+        upper: &[f64],
+        damping: Option<(f64, bool)>,
+        weight: impl Fn(usize, bool) -> f64,
+    ) -> (&[usize], &[usize], &[f64]) {
         for (v, &p) in self.values.iter_mut().zip(&self.source) {
-            *v = upper[p];
+            *v = upper[p as usize];
+        }
+        if let Some((mu, diagonal)) = damping.filter(|&(mu, _)| mu > 0.0) {
+            // Rows are sorted within a column: the diagonal comes first.
+            for k in 0..self.col_ptr.len() - 1 {
+                self.values[self.col_ptr[k]] += mu * weight(k, diagonal);
+            }
         }
         (&self.col_ptr, &self.row_idx, &self.values)
     }
@@ -441,11 +458,9 @@ impl SparsityPattern {
             .map_err(|_| HitlError::Solver("out of memory for the Cholesky workspace".into()))?;
         let nnz = row_idx.len();
         let l_len = symbolic.len_val();
-        let lower = if matches!(symbolic.raw(), SymbolicCholeskyRaw::Supernodal(_)) {
-            LowerTriangle::of_blocks(&block_offset, &block_dim, &upper_ptr, &upper_idx, &col_ptr)
-        } else {
-            LowerTriangle::default()
-        };
+        let lower_blocks = (matches!(symbolic.raw(), SymbolicCholeskyRaw::Supernodal(_))
+            && u32::try_from(nnz).is_ok())
+        .then_some((upper_ptr, upper_idx));
         Ok(Self {
             pose_block,
             line_block,
@@ -460,14 +475,33 @@ impl SparsityPattern {
             symbolic,
             h: vec![0.0; nnz],
             g: vec![0.0; n],
-            damped: vec![0.0; nnz],
+            damped: Vec::new(),
             l_values: vec![0.0; l_len],
             mem,
             max_residual,
             max_jac,
             wide,
-            lower,
+            lower: LowerTriangle::default(),
+            lower_blocks,
         })
+    }
+
+    /// Whether the factorization reads the lower triangle (the supernodal kernel).
+    pub(super) fn uses_lower(&self) -> bool {
+        self.lower_blocks.is_some()
+    }
+
+    /// Builds the lower triangle if the factorization reads one and it is not built yet.
+    pub(super) fn ensure_lower(&mut self) {
+        if let (true, Some((ptr, rows))) = (self.lower.is_empty(), &self.lower_blocks) {
+            self.lower = LowerTriangle::of_blocks(
+                &self.block_offset,
+                &self.block_dim,
+                ptr,
+                rows,
+                &self.col_ptr,
+            );
+        }
     }
 
     /// Number of scalar unknowns.
@@ -519,10 +553,13 @@ mod tests {
         let row_idx = [0, 0, 1, 2, 1, 2, 3];
         let upper = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0];
         let mut lower = super::LowerTriangle::of_upper(4, &col_ptr, &row_idx);
-        let (lp, li, lv) = lower.gather(&upper);
+        let (lp, li, lv) = lower.gather(&upper, None, |_, _| 0.0);
         assert_eq!(lp, &[0, 2, 4, 6, 7]);
         assert_eq!(li, &[0, 1, 1, 3, 2, 3, 3]);
         assert_eq!(lv, &[1.0, 2.0, 3.0, 5.0, 4.0, 6.0, 7.0]);
+        // Damping lands on the diagonal, weighted per column.
+        let (_, _, lv) = lower.gather(&upper, Some((2.0, true)), |k, _| k as f64);
+        assert_eq!(lv, &[1.0, 2.0, 5.0, 5.0, 8.0, 6.0, 13.0]);
     }
 
     use super::*;
@@ -561,7 +598,10 @@ mod tests {
                 &p.col_ptr,
             );
             let mut slow = LowerTriangle::of_upper(p.n, &p.col_ptr, &p.row_idx);
-            let (a, b) = (fast.gather(&upper), slow.gather(&upper));
+            let (a, b) = (
+                fast.gather(&upper, None, |_, _| 0.0),
+                slow.gather(&upper, None, |_, _| 0.0),
+            );
             assert_eq!(a.0, b.0, "n {n}: column pointers");
             assert_eq!(a.1, b.1, "n {n}: row indices");
             assert_eq!(a.2, b.2, "n {n}: values");
