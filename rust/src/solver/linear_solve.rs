@@ -11,7 +11,7 @@ use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side, Spec};
 
 use super::pattern::SparsityPattern;
-use super::woodbury::Cholesky;
+use super::woodbury::{Cholesky, LowRank};
 use crate::error::{HitlError, Result};
 
 /// `y = A x` and `z = |A| |x|` (for the backward error of a refinement step) for a symmetric A
@@ -99,11 +99,18 @@ fn damping_weight(h_kk: f64, diagonal: bool) -> f64 {
     }
 }
 
+/// Diagonal entry k of the full `H = H_s + U U^T`, from the upper CSC of `H_s` (`h`, `col_ptr`:
+/// the diagonal closes each column) and the wide rows.
+#[inline]
+fn hessian_diagonal(h: &[f64], col_ptr: &[usize], wide: &LowRank, k: usize) -> f64 {
+    h[col_ptr[k + 1] - 1] + wide.diagonal(k)
+}
+
 impl SparsityPattern {
     /// Diagonal entry k of the full `H = H_s + U U^T`.
     #[inline]
     fn hessian_diagonal(&self, k: usize) -> f64 {
-        self.h[self.col_ptr[k + 1] - 1] + self.wide.diagonal(k)
+        hessian_diagonal(&self.h, &self.col_ptr, &self.wide, k)
     }
 
     /// Entry k of the damping matrix D: `diag(H)` clamped to `[1e-6, 1e32]` (`diagonal`,
@@ -277,7 +284,7 @@ impl SparsityPattern {
         } else {
             let (h, upper_ptr, wide) = (&self.h, &self.col_ptr, &self.wide);
             let weight = |k: usize, diagonal: bool| {
-                damping_weight(h[upper_ptr[k + 1] - 1] + wide.diagonal(k), diagonal)
+                damping_weight(hessian_diagonal(h, upper_ptr, wide, k), diagonal)
             };
             let (col_ptr, row_idx, values) = self.lower.gather(h, damping, weight);
             (col_ptr, row_idx, values, Side::Lower)
