@@ -115,6 +115,38 @@ impl SparsityPattern {
         chi2
     }
 
+    /// Whether a trial point can be linearized ahead (`linearize_ahead`): not with wide factors,
+    /// whose rows (`U`) are not kept twice.
+    pub fn can_look_ahead(&self) -> bool {
+        self.wide.rank() == 0
+    }
+
+    /// Linearizes at a trial point `values` into the look-ahead buffers and returns the cost
+    /// there, leaving `H`, `g` of the current point as they are (a rejected trial costs nothing
+    /// more); [`Self::accept_ahead`] makes the trial's current. Only where `can_look_ahead`.
+    pub fn linearize_ahead(
+        &mut self,
+        factors: &[Box<dyn Factor>],
+        values: &Values,
+        kernels: &[Option<Kernel>],
+    ) -> f64 {
+        debug_assert!(self.can_look_ahead());
+        self.h_ahead.resize(self.h.len(), 0.0);
+        self.g_ahead.resize(self.g.len(), 0.0);
+        std::mem::swap(&mut self.h, &mut self.h_ahead);
+        std::mem::swap(&mut self.g, &mut self.g_ahead);
+        let cost = self.linearize(factors, values, kernels);
+        std::mem::swap(&mut self.h, &mut self.h_ahead);
+        std::mem::swap(&mut self.g, &mut self.g_ahead);
+        cost
+    }
+
+    /// The trial point last linearized ahead becomes the current linearization.
+    pub fn accept_ahead(&mut self) {
+        std::mem::swap(&mut self.h, &mut self.h_ahead);
+        std::mem::swap(&mut self.g, &mut self.g_ahead);
+    }
+
     /// The cost at `values` without linearizing (trial points): chi2, or `sum rho(|r|^2)`.
     pub fn cost(factors: &[Box<dyn Factor>], values: &Values, kernels: &[Option<Kernel>]) -> f64 {
         if kernels.is_empty() {
@@ -242,6 +274,33 @@ mod tests {
     use super::*;
     use crate::graph::FactorGraph;
     use crate::solver::test_problems::{corrected, dense_hessian, ring, Relations};
+
+    #[test]
+    fn a_trial_linearized_ahead_leaves_the_current_linearization_until_accepted() {
+        let (mut g, values) = ring(30);
+        let mut trial = values.clone();
+        for (k, q) in trial.poses.iter_mut().enumerate() {
+            q.x += 0.01 * k as f64;
+            q.theta -= 0.003 * k as f64;
+        }
+        let (factors, p) = g.parts().unwrap();
+        assert!(p.can_look_ahead());
+        let here = p.linearize(factors, &trial, &[]);
+        let (h_trial, g_trial) = (p.h.clone(), p.g.clone());
+        let cost = p.linearize(factors, &values, &[]);
+        let (h_now, g_now) = (p.h.clone(), p.g.clone());
+        // Rejected: nothing of the current linearization changes.
+        assert_eq!(p.linearize_ahead(factors, &trial, &[]), here);
+        assert_eq!((&p.h, &p.g), (&h_now, &g_now));
+        assert_ne!(h_now, h_trial);
+        // Accepted: the trial's is current, exactly as if linearized there.
+        p.accept_ahead();
+        assert_eq!((&p.h, &p.g), (&h_trial, &g_trial));
+        assert!(cost != here);
+        // Wide factors' rows are not kept twice.
+        let (mut w, _) = corrected(60, Relations::Wide, false);
+        assert!(!w.pattern().unwrap().can_look_ahead());
+    }
 
     /// Checks the full `H = H_s + U U^T` and `g` against a central-difference Jacobian.
     fn check_against_numerical_jacobian(g: &mut FactorGraph, values: &Values) {

@@ -89,7 +89,7 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
             // Decrease predicted by |r + J h|^2: -2 g.h - h^T H h.
             let h_h_h = p.pattern.hessian_quadratic(&h);
             let predicted = -2.0 * p.gradient_dot(&h) - h_h_h;
-            let (new_cost, gain) = p.try_step(values, &h, &mut trial, cost, predicted);
+            let (new_cost, gain) = p.try_step(values, &h, &mut trial, cost, predicted, false);
             if let Some(rho) = gain {
                 if rho > 0.75 {
                     radius = radius.max(3.0 * step_norm);

@@ -21,6 +21,10 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
     let mut lambda = params.lambda_initial;
     let mut nu = 2.0;
     let mut chord_ready = false;
+    // A trial is linearized as it is evaluated: most steps are accepted, and the linearization
+    // then replaces the separate evaluation of the cost (the last, converging step pays one
+    // linearization for nothing). Not with wide factors (see `can_look_ahead`).
+    let ahead = p.pattern.can_look_ahead();
     'outer: loop {
         if let Some(done) = p.converged_at_point(cost) {
             return Ok(done);
@@ -55,7 +59,7 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
                     }
                 };
                 undamped = damping <= UNDAMPED_SHARE * gd;
-                let (c, gain) = p.try_step(values, &delta, &mut trial, cost, predicted);
+                let (c, gain) = p.try_step(values, &delta, &mut trial, cost, predicted, ahead);
                 new_cost = c;
                 if let Some(rho) = gain {
                     lambda *= f64::max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0).powi(3));
@@ -73,7 +77,11 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
                             return Ok(done);
                         }
                     }
-                    cost = p.linearize(values);
+                    if ahead {
+                        p.pattern.accept_ahead();
+                    } else {
+                        cost = p.linearize(values);
+                    }
                     continue 'outer;
                 }
                 if is_chord {

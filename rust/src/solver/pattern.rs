@@ -52,6 +52,9 @@ pub struct SparsityPattern {
     pub(crate) h: Vec<f64>,
     pub(crate) g: Vec<f64>,
     pub(super) damped: Vec<f64>,
+    /// `H`, `g` at a trial point (`linearize_ahead`), until it is accepted or another is tried.
+    pub(super) h_ahead: Vec<f64>,
+    pub(super) g_ahead: Vec<f64>,
     pub(super) l_values: Vec<f64>,
     pub(super) mem: MemBuffer,
     pub(super) max_residual: usize,
@@ -476,6 +479,8 @@ impl SparsityPattern {
             h: vec![0.0; nnz],
             g: vec![0.0; n],
             damped: Vec::new(),
+            h_ahead: Vec::new(),
+            g_ahead: Vec::new(),
             l_values: vec![0.0; l_len],
             mem,
             max_residual,

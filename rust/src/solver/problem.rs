@@ -142,7 +142,9 @@ impl<'a> Problem<'a> {
     }
 
     /// Evaluates the step `delta` from `values` into `trial`: the trial cost and, when it
-    /// decreases the cost `cost`, the gain ratio against the model's `predicted` decrease.
+    /// decreases the cost `cost`, the gain ratio against the model's `predicted` decrease. With
+    /// `ahead` the trial is linearized as well (`SparsityPattern::linearize_ahead`), so that an
+    /// accepted step needs no linearization of its own (`accept_ahead`).
     pub fn try_step(
         &mut self,
         values: &Values,
@@ -150,10 +152,20 @@ impl<'a> Problem<'a> {
         trial: &mut Values,
         cost: f64,
         predicted: f64,
+        ahead: bool,
     ) -> (f64, Option<f64>) {
         trial.clone_from(values);
         self.pattern.retract(trial, delta);
-        let new_cost = self.cost(trial);
+        let new_cost = if ahead {
+            let t = Instant::now();
+            let c = self
+                .pattern
+                .linearize_ahead(self.factors, trial, &self.kernels);
+            self.time_linearize += t.elapsed().as_secs_f64();
+            c
+        } else {
+            self.cost(trial)
+        };
         let actual = cost - new_cost;
         if new_cost.is_finite() && actual > 0.0 {
             let rho = if predicted > 0.0 {
