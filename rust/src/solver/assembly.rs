@@ -133,11 +133,10 @@ impl SparsityPattern {
         debug_assert!(self.can_look_ahead());
         self.h_ahead.resize(self.h.len(), 0.0);
         self.g_ahead.resize(self.g.len(), 0.0);
-        std::mem::swap(&mut self.h, &mut self.h_ahead);
-        std::mem::swap(&mut self.g, &mut self.g_ahead);
+        // Linearize into the look-ahead pair, then swap the current one back in.
+        self.accept_ahead();
         let cost = self.linearize(factors, values, kernels);
-        std::mem::swap(&mut self.h, &mut self.h_ahead);
-        std::mem::swap(&mut self.g, &mut self.g_ahead);
+        self.accept_ahead();
         cost
     }
 
