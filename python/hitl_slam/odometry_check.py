@@ -109,6 +109,15 @@ def _confirmed(map: Map, steps: FloatArray, k: int, r: float, config: Config) ->
     return bool(votes) and all(votes)
 
 
+def _turn_variance_replaced(odo_cov: FloatArray, variance: float) -> FloatArray:
+    """The information of a step whose turn gets ``variance``, uncorrelated with its translation,
+    which keeps the odometry's covariance ``odo_cov``."""
+    out = odo_cov.copy()
+    out[2, :] = out[:, 2] = 0.0
+    out[2, 2] = variance
+    return np.asarray(np.linalg.inv(out), dtype=np.float64)
+
+
 def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
     """Matches every pair of consecutive scans and widens the heading information of the chain
     edges whose turn the scans contradict (squared Mahalanobis distance of the heading
@@ -135,9 +144,10 @@ def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
         row = rows[k]
         r = float(math.remainder(map.measurements[row, 2] - found[k, 2], 2 * math.pi))
         try:
-            odo_var = float(np.linalg.inv(info[row])[2, 2])
+            odo_cov = np.linalg.inv(info[row])
         except np.linalg.LinAlgError:
             continue
+        odo_var = float(odo_cov[2, 2])
         d2 = r * r / (odo_var + float(cov[k, 2, 2]))
         distance2[k] = d2
         if (
@@ -147,10 +157,7 @@ def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
         ):
             # The step's turn is the scans' (with their variance); its translation, in the
             # robot's frame, stays the odometry's (a heading fault leaves it right).
-            odo_cov = np.linalg.inv(info[row])
-            odo_cov[2, :] = odo_cov[:, 2] = 0.0
-            odo_cov[2, 2] = float(cov[k, 2, 2])
-            info[row] = np.linalg.inv(odo_cov)
+            info[row] = _turn_variance_replaced(odo_cov, float(cov[k, 2, 2]))
             measurements[row, 2] = found[k, 2]
             relaxed.append(int(row))
         elif (
@@ -163,10 +170,7 @@ def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
             # little; the scans, unbiased, take a share of it out at each step).
             s_var = float(cov[k, 2, 2])
             gain = odo_var / (odo_var + s_var)
-            odo_cov = np.linalg.inv(info[row])
-            odo_cov[2, :] = odo_cov[:, 2] = 0.0
-            odo_cov[2, 2] = odo_var * s_var / (odo_var + s_var)
-            info[row] = np.linalg.inv(odo_cov)
+            info[row] = _turn_variance_replaced(odo_cov, odo_var * s_var / (odo_var + s_var))
             measurements[row, 2] = map.measurements[row, 2] - gain * r
     if relaxed:
         steps = ", ".join(
