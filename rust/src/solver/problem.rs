@@ -101,6 +101,17 @@ impl<'a> Problem<'a> {
         c
     }
 
+    /// Builds `H`, `g` at the trial point `values` into the look-ahead pair (see
+    /// `SparsityPattern::linearize_ahead`); returns the cost there.
+    fn linearize_ahead(&mut self, values: &Values) -> f64 {
+        let t = Instant::now();
+        let c = self
+            .pattern
+            .linearize_ahead(self.factors, values, &self.kernels);
+        self.time_linearize += t.elapsed().as_secs_f64();
+        c
+    }
+
     /// The cost at `values` (no linearization).
     pub fn cost(&mut self, values: &Values) -> f64 {
         let t = Instant::now();
@@ -157,12 +168,7 @@ impl<'a> Problem<'a> {
         trial.clone_from(values);
         self.pattern.retract(trial, delta);
         let new_cost = if ahead {
-            let t = Instant::now();
-            let c = self
-                .pattern
-                .linearize_ahead(self.factors, trial, &self.kernels);
-            self.time_linearize += t.elapsed().as_secs_f64();
-            c
+            self.linearize_ahead(trial)
         } else {
             self.cost(trial)
         };
