@@ -98,23 +98,18 @@ impl LowerTriangle {
         let nnz = col_ptr[n];
         // Block transpose: for block r, the blocks c > r whose column holds it, with the offset
         // of r's rows within c's columns.
-        let mut t_ptr = vec![0usize; nb + 1];
-        for &r in &upper_idx[..upper_ptr[nb]] {
-            t_ptr[r + 1] += 1;
-        }
-        for b in 0..nb {
-            t_ptr[b + 1] += t_ptr[b];
-        }
-        let mut next = t_ptr[..nb].to_vec();
-        let mut t_entry = vec![(0usize, 0usize); upper_ptr[nb]];
-        for c in 0..nb {
-            let mut before = 0;
-            for &r in &upper_idx[upper_ptr[c]..upper_ptr[c + 1]] {
-                t_entry[next[r]] = (c, before);
-                next[r] += 1;
-                before += block_dim[r];
-            }
-        }
+        let (t_ptr, t_entry) = group_by_key(
+            nb,
+            (0..nb).flat_map(|c| {
+                upper_idx[upper_ptr[c]..upper_ptr[c + 1]]
+                    .iter()
+                    .scan(0, move |before, &r| {
+                        let entry = (r, (c, *before));
+                        *before += block_dim[r];
+                        Some(entry)
+                    })
+            }),
+        );
         let mut lower_ptr = Vec::with_capacity(n + 1);
         let mut lower_idx = Vec::with_capacity(nnz);
         let mut source = Vec::with_capacity(nnz);
@@ -201,6 +196,28 @@ impl LowerTriangle {
     }
 }
 
+/// `(key, value)` entries grouped by key (`key < n`) in compressed form, by a counting sort:
+/// key k's values are `values[ptr[k]..ptr[k + 1]]`, in the order the entries come.
+fn group_by_key<T: Copy + Default>(
+    n: usize,
+    entries: impl Iterator<Item = (usize, T)> + Clone,
+) -> (Vec<usize>, Vec<T>) {
+    let mut ptr = vec![0usize; n + 1];
+    for (k, _) in entries.clone() {
+        ptr[k + 1] += 1;
+    }
+    for k in 0..n {
+        ptr[k + 1] += ptr[k];
+    }
+    let mut next = ptr[..n].to_vec();
+    let mut values = vec![T::default(); ptr[n]];
+    for (k, v) in entries {
+        values[next[k]] = v;
+        next[k] += 1;
+    }
+    (ptr, values)
+}
+
 pub(super) fn block_of(pose_block: &[usize], line_block: &[usize], key: Key) -> usize {
     match key {
         Key::Pose(i) => pose_block[i],
@@ -276,23 +293,12 @@ impl SparsityPattern {
             })
             .collect();
         // Block -> sparse factor incidence (wide factors left out).
-        let mut inc_ptr = vec![0usize; nb + 1];
-        for fi in (0..factors.len()).filter(|&fi| !is_wide[fi]) {
-            for &b in factor_blocks(fi) {
-                inc_ptr[b + 1] += 1;
-            }
-        }
-        for b in 0..nb {
-            inc_ptr[b + 1] += inc_ptr[b];
-        }
-        let mut fill = inc_ptr.clone();
-        let mut inc_idx = vec![0usize; inc_ptr[nb]];
-        for fi in (0..factors.len()).filter(|&fi| !is_wide[fi]) {
-            for &b in factor_blocks(fi) {
-                inc_idx[fill[b]] = fi;
-                fill[b] += 1;
-            }
-        }
+        let (inc_ptr, inc_idx) = group_by_key(
+            nb,
+            (0..factors.len())
+                .filter(|&fi| !is_wide[fi])
+                .flat_map(|fi| factor_blocks(fi).iter().map(move |&b| (b, fi))),
+        );
         let mut mark = vec![NO_BLOCK; nb];
         let mut adj_ptr = Vec::with_capacity(nb + 1);
         let mut adj_idx = Vec::new();
