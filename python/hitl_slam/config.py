@@ -75,6 +75,13 @@ class Config:
     # robust kernels in the joint solve, per edge class ("" for none), e.g. "odometry=cauchy:1"
     # (hitl_slam.solve.robust_pairs)
     robust: str = ""
+    # contradicted relations (docs/ALGORITHM.md §I.8): each correction's relation R_p carries
+    # dynamic covariance scaling with this Phi [chi2], so where corrections contradict one
+    # another the odometry decides and the statement it contradicts yields instead of bending
+    # the map. 1000 is about K1 sigma_f^2: a relation held off by more than ~3 cm (or, on its
+    # angle row at K2, ~0.6 deg) starts to yield. 0 = off (every relation hard, as the paper);
+    # a "relation=..." kernel in `robust` replaces it
+    relation_dcs: float = 1000.0
     # colocation guard: the chi2 of the map's own measurements a colocation may cost above the
     # same correction solved as collinear before it is applied as collinear (0 = off; 3.84 is
     # chi2 with one degree of freedom at 95%: the along-the-wall part is one constraint)

@@ -165,6 +165,16 @@ def _engine_entry(map: Map) -> _Entry:
         return entry
 
 
+def joint_kernels(config: Config = DEFAULT) -> list[tuple[str, str]]:
+    """The robust kernels of the joint solve: ``config.robust``, plus dynamic covariance scaling
+    on every correction's relation (``config.relation_dcs``, docs/ALGORITHM.md §I.8) unless
+    ``config.robust`` names a kernel for relations itself."""
+    pairs = robust_pairs(config.robust)
+    if config.relation_dcs > 0 and all(cls != "relation" for cls, _ in pairs):
+        pairs.append(("relation", f"dcs:{config.relation_dcs!r}"))
+    return pairs
+
+
 def solve_all(
     map: Map,
     active: Sequence[Interpretation],
@@ -190,7 +200,7 @@ def solve_all(
             max_iterations=config.max_iterations,
             relative_tolerance=config.relative_tolerance,
             absolute_tolerance=config.absolute_tolerance,
-            robust=robust_pairs(config.robust),
+            robust=joint_kernels(config),
             # The start is the explicit correction and its back-propagation: a trust region
             # stays in its basin. The watchdog's Gauss-Newton jumps (for starts off by radians)
             # found other, lower-cost basins here that fit the drawings worse (Freiburg 079 in
@@ -275,7 +285,7 @@ def apply_correction(
             active_rows,
             config,
             sigma_h=sigma_h,
-            robust=robust_pairs(config.robust),
+            robust=joint_kernels(config),
             consistency_z=z,
         )
     h = from_core(t)

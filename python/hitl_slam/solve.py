@@ -29,9 +29,10 @@ __all__ = [
     "robust_pairs",
 ]
 
-EDGE_CLASSES = ("odometry", "loop", "human", "prior")
+EDGE_CLASSES = ("odometry", "loop", "human", "relation", "prior")
 """Edge classes a robust kernel can be chosen for: ``odometry`` (consecutive poses, |i - j| = 1),
-``loop`` (any other relative pose), ``human`` (correction factors), ``prior``."""
+``loop`` (any other relative pose), ``human`` (a correction's point-to-line factors),
+``relation`` (a correction's relation between its two lines), ``prior``."""
 
 RobustSpec = str | Mapping[str, str] | None
 """``"dcs:1"`` (on loop closures), ``{"loop": "dcs:1", "odometry": "huber:2"}``, or None."""

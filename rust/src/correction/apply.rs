@@ -96,6 +96,50 @@ pub struct Solved {
     pub lines: Vec<Line2>,
     pub transform: Pose2,
     pub report: SolveReport,
+    /// The robust weight of each correction's relation at the solution (`active` in order,
+    /// then the new one; 1 without a kernel on relations).
+    pub relation_weights: Vec<f64>,
+}
+
+/// Below this robust weight a relation counts as yielding to contradicting evidence (as
+/// `hitl_slam.solve.downweighted`).
+const YIELDED: f64 = 0.5;
+
+/// The note naming the relations that yield where corrections contradict one another
+/// (docs/ALGORITHM.md §I.8): `weights` are the active corrections' relations in order, then the
+/// new one's. `None` when every relation holds.
+fn contradicted_note(weights: &[f64]) -> Option<String> {
+    let (new, earlier) = weights.split_last()?;
+    let yielded: Vec<String> = earlier
+        .iter()
+        .enumerate()
+        .filter(|(_, w)| **w < YIELDED)
+        .map(|(k, w)| format!("#{} (weight {w:.2})", k + 1))
+        .collect();
+    let mut parts = Vec::new();
+    if !yielded.is_empty() {
+        parts.push(format!(
+            "earlier correction{} {} of the {} active yield{}: {} this one, and the robot's \
+             measurements side with this one",
+            if yielded.len() > 1 { "s" } else { "" },
+            yielded.join(", "),
+            earlier.len(),
+            if yielded.len() > 1 { "" } else { "s" },
+            if yielded.len() > 1 {
+                "they contradict"
+            } else {
+                "it contradicts"
+            },
+        ));
+    }
+    if *new < YIELDED {
+        parts.push(format!(
+            "this correction holds only in part (weight {new:.2}): it contradicts earlier \
+             corrections, and the robot's measurements side with them; undo the one that is \
+             wrong"
+        ));
+    }
+    (!parts.is_empty()).then(|| parts.join("; "))
 }
 
 /// The `q`-th percentile (0..100) of `v`, interpolated linearly as numpy's default.
@@ -169,17 +213,69 @@ impl CorrectionEngine {
         p: &ApplyParams,
     ) -> Result<Solved> {
         let (moved, transform) = self.explicit_and_backpropagate(current, h)?;
+        self.solve_from(scans, moved, transform, h, active, p)
+    }
+
+    /// The joint solve of `active` plus `h` from `start`; `transform` is recorded as the
+    /// explicit correction's.
+    fn solve_from(
+        &mut self,
+        scans: &Scans,
+        start: Vec<Pose2>,
+        transform: Pose2,
+        h: &Interpretation,
+        active: &[Active],
+        p: &ApplyParams,
+    ) -> Result<Solved> {
         let mut specs = Vec::with_capacity(active.len() + 1);
         for c in active {
             specs.push(spec(scans, c.mode, &c.s_a, &c.s_b)?);
         }
         specs.push(spec(scans, h.mode, &h.s_a, &h.s_b)?);
-        let (values, report) = self.solve(moved, &specs, &p.weights, &p.solver)?;
+        let (values, report) = self.solve(start, &specs, &p.weights, &p.solver)?;
+        // Each correction's factors follow the map's: one per observing pose and segment, then
+        // its relation (`CorrectionSpec::factors`).
+        let mut at = self.num_base_factors();
+        let relation_weights = specs
+            .iter()
+            .map(|c| {
+                at += c.a.len() + c.b.len() + 1;
+                report.weights.get(at - 1).copied().unwrap_or(1.0)
+            })
+            .collect();
         Ok(Solved {
             poses: values.poses,
             lines: values.lines,
             transform,
             report,
+            relation_weights,
+        })
+    }
+
+    /// Where the new correction contradicts earlier ones (some earlier relation yields in
+    /// `solved`, which started from the new correction's explicit step, so the new statement
+    /// held from the start), the same set is solved again from the map as shown, where the
+    /// earlier statements hold, and the solution of the lower robust cost is kept: which
+    /// statements yield is decided by the robot's measurements and the number of statements on
+    /// each side, not by which came last (docs/ALGORITHM.md §I.8).
+    fn settle_contradiction(
+        &mut self,
+        scans: &Scans,
+        current: &[Pose2],
+        h: &Interpretation,
+        solved: Solved,
+        active: &[Active],
+        p: &ApplyParams,
+    ) -> Result<Solved> {
+        let earlier = &solved.relation_weights[..solved.relation_weights.len().saturating_sub(1)];
+        if earlier.iter().all(|w| *w >= YIELDED) {
+            return Ok(solved);
+        }
+        let other = self.solve_from(scans, current.to_vec(), solved.transform, h, active, p)?;
+        Ok(if other.report.final_cost < solved.report.final_cost {
+            other
+        } else {
+            solved
         })
     }
 
@@ -267,9 +363,13 @@ impl CorrectionEngine {
                 solved = alt_solved;
             }
         }
+        solved = self.settle_contradiction(scans, current, &h, solved, active, p)?;
         if p.consistency_guard > 0.0 {
             (h, solved) =
                 self.consistency_guard(scans, current, drawing, h, solved, before, active, p)?;
+        }
+        if let Some(note) = contradicted_note(&solved.relation_weights) {
+            h.notes.push(note);
         }
         Ok(Applied {
             interpretation: h,
@@ -386,4 +486,31 @@ fn python_g(x: f64) -> String {
     let s = format!("{x:.6}");
     let s = s.trim_end_matches('0').trim_end_matches('.');
     s.to_string()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::contradicted_note;
+
+    #[test]
+    fn the_note_names_the_relations_that_yield() {
+        assert_eq!(contradicted_note(&[]), None);
+        assert_eq!(contradicted_note(&[1.0, 0.9, 1.0]), None);
+        let earlier = contradicted_note(&[0.01, 1.0, 0.3, 1.0]).unwrap();
+        assert!(
+            earlier.starts_with("earlier corrections #1 (weight 0.01), #3 (weight 0.30) of the 3 active yield: they contradict this one"),
+            "{earlier}"
+        );
+        let one = contradicted_note(&[1.0, 0.2, 1.0]).unwrap();
+        assert!(
+            one.starts_with("earlier correction #2 (weight 0.20) of the 2 active yields"),
+            "{one}"
+        );
+        let new = contradicted_note(&[1.0, 0.1]).unwrap();
+        assert!(
+            new.starts_with("this correction holds only in part (weight 0.10)"),
+            "{new}"
+        );
+        assert!(!new.contains("yield"), "{new}");
+    }
 }

@@ -17,6 +17,7 @@
 use std::f64::consts::{FRAC_PI_2, PI};
 
 use super::Factor;
+use super::FactorClass;
 use crate::error::{input, Result};
 use crate::values::{Key, Values};
 
@@ -274,6 +275,10 @@ impl RelationFactor {
 impl Factor for RelationFactor {
     fn keys(&self) -> &[Key] {
         &self.keys
+    }
+
+    fn class(&self) -> FactorClass {
+        FactorClass::Relation
     }
 
     fn residual_dim(&self) -> usize {

@@ -32,18 +32,21 @@ pub enum FactorClass {
     Odometry,
     /// A relative pose between any other two poses (scan matching, place recognition).
     LoopClosure,
-    /// A human correction's factors (point-to-line, relation).
+    /// A human correction's point-to-line factors (each line on its observations).
     Human,
     /// A prior on one pose.
     Prior,
+    /// A human correction's relation between its two lines (same wall, parallel, ...).
+    Relation,
 }
 
 impl FactorClass {
-    pub const ALL: [FactorClass; 4] = [
+    pub const ALL: [FactorClass; 5] = [
         FactorClass::Odometry,
         FactorClass::LoopClosure,
         FactorClass::Human,
         FactorClass::Prior,
+        FactorClass::Relation,
     ];
 
     pub fn name(self) -> &'static str {
@@ -52,6 +55,7 @@ impl FactorClass {
             FactorClass::LoopClosure => "loop",
             FactorClass::Human => "human",
             FactorClass::Prior => "prior",
+            FactorClass::Relation => "relation",
         }
     }
 
@@ -61,8 +65,9 @@ impl FactorClass {
             "loop" | "loops" | "loop_closure" | "loop-closure" => Ok(FactorClass::LoopClosure),
             "human" => Ok(FactorClass::Human),
             "prior" => Ok(FactorClass::Prior),
+            "relation" => Ok(FactorClass::Relation),
             other => input(format!(
-                "unknown edge class {other:?}; use odometry, loop, human or prior"
+                "unknown edge class {other:?}; use odometry, loop, human, relation or prior"
             )),
         }
     }

@@ -138,7 +138,7 @@ impl std::fmt::Display for Kernel {
 /// A kernel for each factor class (`None`: plain least squares).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct RobustKernels {
-    per_class: [Option<Kernel>; 4],
+    per_class: [Option<Kernel>; 5],
 }
 
 impl RobustKernels {
