@@ -99,6 +99,9 @@ pub struct Solved {
     /// The robust weight of each correction's relation at the solution (`active` in order,
     /// then the new one; 1 without a kernel on relations).
     pub relation_weights: Vec<f64>,
+    /// Whether this solution was kept over the new correction's own because the earlier
+    /// corrections it contradicts hold at a lower cost (`settle_contradiction`).
+    pub contested: bool,
 }
 
 /// Below this robust weight a relation counts as yielding to contradicting evidence (as
@@ -107,8 +110,9 @@ const YIELDED: f64 = 0.5;
 
 /// The note naming the relations that yield where corrections contradict one another
 /// (docs/ALGORITHM.md §I.8): `weights` are the active corrections' relations in order, then the
-/// new one's. `None` when every relation holds.
-fn contradicted_note(weights: &[f64]) -> Option<String> {
+/// new one's; `contested`: the new one yields to earlier corrections it contradicts (otherwise,
+/// if it yields, it yields to the robot's measurements alone). `None` when every relation holds.
+fn contradicted_note(weights: &[f64], contested: bool) -> Option<String> {
     let (new, earlier) = weights.split_last()?;
     let yielded: Vec<String> = earlier
         .iter()
@@ -133,11 +137,19 @@ fn contradicted_note(weights: &[f64]) -> Option<String> {
         ));
     }
     if *new < YIELDED {
-        parts.push(format!(
-            "this correction holds only in part (weight {new:.2}): it contradicts earlier \
-             corrections, and the robot's measurements side with them; undo the one that is \
-             wrong"
-        ));
+        parts.push(if contested {
+            format!(
+                "this correction holds only in part (weight {new:.2}): it contradicts earlier \
+                 corrections, and the robot's measurements side with them; undo the one that is \
+                 wrong"
+            )
+        } else {
+            format!(
+                "this correction holds only in part (weight {new:.2}): the robot's own \
+                 measurements contradict it far beyond their noise; check that it selected the \
+                 passes you meant"
+            )
+        });
     }
     (!parts.is_empty()).then(|| parts.join("; "))
 }
@@ -249,6 +261,7 @@ impl CorrectionEngine {
             transform,
             report,
             relation_weights,
+            contested: false,
         })
     }
 
@@ -271,7 +284,8 @@ impl CorrectionEngine {
         if earlier.iter().all(|w| *w >= YIELDED) {
             return Ok(solved);
         }
-        let other = self.solve_from(scans, current.to_vec(), solved.transform, h, active, p)?;
+        let mut other = self.solve_from(scans, current.to_vec(), solved.transform, h, active, p)?;
+        other.contested = true;
         Ok(if other.report.final_cost < solved.report.final_cost {
             other
         } else {
@@ -368,7 +382,7 @@ impl CorrectionEngine {
             (h, solved) =
                 self.consistency_guard(scans, current, drawing, h, solved, before, active, p)?;
         }
-        if let Some(note) = contradicted_note(&solved.relation_weights) {
+        if let Some(note) = contradicted_note(&solved.relation_weights, solved.contested) {
             h.notes.push(note);
         }
         Ok(Applied {
@@ -494,19 +508,24 @@ mod tests {
 
     #[test]
     fn the_note_names_the_relations_that_yield() {
-        assert_eq!(contradicted_note(&[]), None);
-        assert_eq!(contradicted_note(&[1.0, 0.9, 1.0]), None);
-        let earlier = contradicted_note(&[0.01, 1.0, 0.3, 1.0]).unwrap();
+        assert_eq!(contradicted_note(&[], false), None);
+        assert_eq!(contradicted_note(&[1.0, 0.9, 1.0], true), None);
+        let earlier = contradicted_note(&[0.01, 1.0, 0.3, 1.0], false).unwrap();
         assert!(
             earlier.starts_with("earlier corrections #1 (weight 0.01), #3 (weight 0.30) of the 3 active yield: they contradict this one"),
             "{earlier}"
         );
-        let one = contradicted_note(&[1.0, 0.2, 1.0]).unwrap();
+        let one = contradicted_note(&[1.0, 0.2, 1.0], false).unwrap();
         assert!(
             one.starts_with("earlier correction #2 (weight 0.20) of the 2 active yields"),
             "{one}"
         );
-        let new = contradicted_note(&[1.0, 0.1]).unwrap();
+        let alone = contradicted_note(&[0.9, 0.1], false).unwrap();
+        assert!(
+            alone.contains("the robot's own measurements contradict it"),
+            "{alone}"
+        );
+        let new = contradicted_note(&[1.0, 0.1], true).unwrap();
         assert!(
             new.starts_with("this correction holds only in part (weight 0.10)"),
             "{new}"
