@@ -23,6 +23,8 @@ from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.odometry_check import checked_map
 from hitl_slam.pipeline import apply_correction, joint_kernels, solve_all
 
+Wall = tuple[tuple[float, float], tuple[float, float]]
+
 # The consistency guard would refuse the false statement; here it got in regardless (as a
 # statement the guard cannot see through does), and the question is what happens next.
 UNGUARDED = dataclasses.replace(DEFAULT, consistency_guard=0.0)
@@ -41,47 +43,61 @@ def _interpret(w: CopiesWorld, drawn: DrawnCorrection, config: Config) -> Interp
     return apply_correction(w.map, w.map.poses, drawn, (), config).interpretation
 
 
+def _shown(w: CopiesWorld, wall: Wall, lap: int, poses: np.ndarray) -> np.ndarray:
+    """(2, 2) the wall as lap `lap` shows it on the map drawn with `poses` (each lap's pass is
+    rigid: its middle pose carries the wall from where the robot truly was)."""
+    n = len(w.laps[lap])
+    xs = np.linspace(1.0, 13.0, n)[:: -1 if lap % 2 else 1]
+    tx, ty, tth = xs[n // 2], 1.5, math.pi if lap % 2 else 0.0
+    x, y, th = poses[w.laps[lap][n // 2]]
+    q = np.array(wall, dtype=float) - [tx, ty]
+    c, s = math.cos(th - tth), math.sin(th - tth)
+    return np.stack([c * q[:, 0] - s * q[:, 1] + x, s * q[:, 0] + c * q[:, 1] + y], axis=1)
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_a_false_statement_yields_to_the_true_ones_that_contradict_it(seed: int) -> None:
     rng = np.random.default_rng(900 + seed)
     offset = rng.uniform(0.3, 0.5) * rng.choice([-1.0, 1.0])
     turn = math.radians(rng.uniform(1.0, 3.0)) * rng.choice([-1.0, 1.0])
     w = copies_world([(0.0, 0.0, 0.0), (0.0, offset, turn)], seed)
-    a0, a1 = w.copy_of(WALL_A, 0), w.copy_of(WALL_A, 1)
-    b0, b1 = w.copy_of(WALL_B, 0), w.copy_of(WALL_B, 1)
 
-    def draw(c0: np.ndarray, c1: np.ndarray, others: tuple[np.ndarray, ...]) -> DrawnCorrection:
-        a = careful_drawing(c0, rng, offset=(0.0, 0.05), others=others)
-        b = careful_drawing(c1, rng, offset=(0.0, 0.05), others=others)
+    def draw(poses: np.ndarray, first: Wall, second: Wall) -> DrawnCorrection:
+        # `first` as lap 0 shows it, `second` as lap 1 does, 0-5 cm beside each copy.
+        c0, c1 = _shown(w, first, 0, poses), _shown(w, second, 1, poses)
+        a = careful_drawing(c0, rng, offset=(0.0, 0.05))
+        b = careful_drawing(c1, rng, offset=(0.0, 0.05))
         return DrawnCorrection.make(a, b, Mode.COLLINEAR)
 
-    # False: "the first lap's wall A and the second lap's wall B are one line" (3 m apart).
-    false = _interpret(w, draw(a0, b1, ()), UNGUARDED)
-    true_a = _interpret(w, draw(a0, a1, (b0, b1)), UNGUARDED)
-    true_b = draw(b0, b1, (a0, a1))
-    before = _lap_error(w, w.map.poses)
-
-    result = apply_correction(w.map, w.map.poses, true_b, (false, true_a), DEFAULT)
-    after = _lap_error(w, result.poses)
-    notes = " ".join(result.interpretation.notes)
-    yields = r"earlier correction #1 \(weight 0\.\d\d\) of the 2 active yields"
-    assert re.search(yields, notes), notes
-    assert "#2" not in notes, notes
+    # False: "the first lap's wall A and the second lap's wall B are one line" (3 m apart), then
+    # the two true statements, each drawn on the map as it stands.
+    shown = w.map.poses
+    active: list[Interpretation] = []
+    notes = []
+    for first, second in ((WALL_A, WALL_B), (WALL_A, WALL_A), (WALL_B, WALL_B)):
+        result = apply_correction(w.map, shown, draw(shown, first, second), active, UNGUARDED)
+        shown = result.poses
+        active.append(result.interpretation)
+        notes.append(" ".join(result.interpretation.notes))
+    # The false one yields once the true ones contradict it, and the note of that step says so.
+    yields = r"earlier correction #1 \(weight 0\.\d\d\) of the \d active yields"
+    assert sum(bool(re.search(yields, n)) for n in notes[1:]) == 1, notes
     # The two true statements hold: the second lap lies on the first.
-    assert after[0] < 0.05, (before, after)
-    assert after[1] < 0.3, (before, after)
+    after = _lap_error(w, shown)
+    assert after[0] < 0.05, after
+    assert after[1] < 0.3, after
 
     # Every relation hard (the paper's model): the same three corrections bend the map.
     hard = dataclasses.replace(UNGUARDED, relation_dcs=0.0)
-    bent = apply_correction(w.map, w.map.poses, true_b, (false, true_a), hard)
+    bent = apply_correction(w.map, w.map.poses, draw(w.map.poses, WALL_B, WALL_B), active[:2], hard)
     assert not any("yield" in n for n in bent.interpretation.notes)
     assert _lap_error(w, bent.poses)[0] > 0.5, _lap_error(w, bent.poses)
 
     # Solving the same set again (as loop-closure edits do) gives the same answer: the kernel
     # is in every joint solve.
     checked = checked_map(w.map, DEFAULT)
-    again, _, _ = solve_all(checked, (false, true_a, result.interpretation), DEFAULT, result.poses)
-    assert np.max(np.abs(again[:, :2] - result.poses[:, :2])) < 0.01
+    again, _, _ = solve_all(checked, active, DEFAULT, shown)
+    assert np.max(np.abs(again[:, :2] - shown[:, :2])) < 0.01
 
 
 def test_true_corrections_that_agree_are_unchanged_by_the_kernel() -> None:

@@ -7,15 +7,15 @@
 use std::time::Instant;
 
 use super::backpropagate;
-use super::engine::{CorrectionEngine, CorrectionSpec, HumanWeights};
+use super::engine::{fit_line_at, CorrectionEngine, CorrectionSpec, HumanWeights};
 use super::explicit::explicit_transform;
 use super::interpretation::{interpret, span, Drawing, InterpretParams, Interpretation};
 use super::scans::{Row, Scans};
 use crate::error::{input, HitlError, Result};
-use crate::factors::RelationMode;
+use crate::factors::{FactorClass, RelationMode};
 use crate::se2::{wrap_angle, Pose2};
 use crate::solver::{SolveReport, SolverParams};
-use crate::values::Line2;
+use crate::values::{Line2, Values};
 
 /// What back-propagation needs of a map's chain (`pipeline._chain_of`): per step `k -> k + 1`
 /// the rotational and isotropic translational variance, and for the steps that have a chain
@@ -111,13 +111,15 @@ const YIELDED: f64 = 0.5;
 /// The note naming the relations that yield where corrections contradict one another
 /// (docs/ALGORITHM.md §I.8): `weights` are the active corrections' relations in order, then the
 /// new one's; `contested`: the new one yields to earlier corrections it contradicts (otherwise,
-/// if it yields, it yields to the robot's measurements alone). `None` when every relation holds.
-fn contradicted_note(weights: &[f64], contested: bool) -> Option<String> {
+/// if it yields, it yields to the robot's measurements alone); `before`: the active ones' weights
+/// on the map as shown, so that only relations this correction makes yield are named (one that
+/// yielded already keeps yielding to whatever contradicted it). `None` when every relation holds.
+fn contradicted_note(weights: &[f64], before: &[f64], contested: bool) -> Option<String> {
     let (new, earlier) = weights.split_last()?;
     let yielded: Vec<String> = earlier
         .iter()
         .enumerate()
-        .filter(|(_, w)| **w < YIELDED)
+        .filter(|(k, w)| **w < YIELDED && before.get(*k).is_none_or(|b| *b >= YIELDED))
         .map(|(k, w)| format!("#{} (weight {w:.2})", k + 1))
         .collect();
     let mut parts = Vec::new();
@@ -293,6 +295,34 @@ impl CorrectionEngine {
         })
     }
 
+    /// The robust weight of each active correction's relation on the map shown with `poses`
+    /// (each line the TLS fit of its observations there, as a solve starts): which relations
+    /// yield already, before the new correction. All 1 without a kernel on relations.
+    fn relation_weights_at(
+        &self,
+        scans: &Scans,
+        poses: &[Pose2],
+        active: &[Active],
+        p: &ApplyParams,
+    ) -> Result<Vec<f64>> {
+        let Some(kernel) = p.solver.robust.get(FactorClass::Relation) else {
+            return Ok(vec![1.0; active.len()]);
+        };
+        let mut values = Values::from_poses(poses.to_vec());
+        active
+            .iter()
+            .map(|c| {
+                let c = spec(scans, c.mode, &c.s_a, &c.s_b)?;
+                values.lines = vec![fit_line_at(poses, &c.a)?, fit_line_at(poses, &c.b)?];
+                let factors = c.factors(0, &p.weights)?;
+                let relation = factors.last().ok_or_else(|| {
+                    HitlError::Solver("internal: a correction without a relation factor".into())
+                })?;
+                Ok(kernel.weight(relation.chi2(&values)))
+            })
+            .collect()
+    }
+
     /// Interprets `drawing` on the map shown with `current`, corrects, and re-solves with every
     /// correction in `active` plus the new one. Refusals are [`HitlError::Rejected`]; nothing
     /// held by the engine but its cache of analyses changes either way.
@@ -382,7 +412,10 @@ impl CorrectionEngine {
             (h, solved) =
                 self.consistency_guard(scans, current, drawing, h, solved, before, active, p)?;
         }
-        if let Some(note) = contradicted_note(&solved.relation_weights, solved.contested) {
+        let before_weights = self.relation_weights_at(scans, current, active, p)?;
+        if let Some(note) =
+            contradicted_note(&solved.relation_weights, &before_weights, solved.contested)
+        {
             h.notes.push(note);
         }
         Ok(Applied {
@@ -508,28 +541,38 @@ mod tests {
 
     #[test]
     fn the_note_names_the_relations_that_yield() {
-        assert_eq!(contradicted_note(&[], false), None);
-        assert_eq!(contradicted_note(&[1.0, 0.9, 1.0], true), None);
-        let earlier = contradicted_note(&[0.01, 1.0, 0.3, 1.0], false).unwrap();
+        assert_eq!(contradicted_note(&[], &[], false), None);
+        assert_eq!(contradicted_note(&[1.0, 0.9, 1.0], &[1.0, 1.0], true), None);
+        let earlier = contradicted_note(&[0.01, 1.0, 0.3, 1.0], &[1.0, 1.0, 1.0], false).unwrap();
         assert!(
             earlier.starts_with("earlier corrections #1 (weight 0.01), #3 (weight 0.30) of the 3 active yield: they contradict this one"),
             "{earlier}"
         );
-        let one = contradicted_note(&[1.0, 0.2, 1.0], false).unwrap();
+        let one = contradicted_note(&[1.0, 0.2, 1.0], &[1.0, 1.0], false).unwrap();
         assert!(
             one.starts_with("earlier correction #2 (weight 0.20) of the 2 active yields"),
             "{one}"
         );
-        let alone = contradicted_note(&[0.9, 0.1], false).unwrap();
+        let alone = contradicted_note(&[0.9, 0.1], &[1.0], false).unwrap();
         assert!(
             alone.contains("the robot's own measurements contradict it"),
             "{alone}"
         );
-        let new = contradicted_note(&[1.0, 0.1], true).unwrap();
+        let new = contradicted_note(&[1.0, 0.1], &[1.0], true).unwrap();
         assert!(
             new.starts_with("this correction holds only in part (weight 0.10)"),
             "{new}"
         );
         assert!(!new.contains("yield"), "{new}");
+        // A relation that yielded before this correction is not this correction's doing.
+        assert_eq!(
+            contradicted_note(&[0.01, 1.0, 1.0], &[0.02, 1.0], false),
+            None
+        );
+        let since = contradicted_note(&[0.01, 0.1, 1.0], &[0.02, 1.0], false).unwrap();
+        assert!(
+            since.starts_with("earlier correction #2 (weight 0.10) of the 2"),
+            "{since}"
+        );
     }
 }
