@@ -247,13 +247,12 @@ impl CorrectionEngine {
         }
         specs.push(spec(scans, h.mode, &h.s_a, &h.s_b)?);
         let (values, report) = self.solve(start, &specs, &p.weights, &p.solver)?;
-        // Each correction's factors follow the map's: one per observing pose and segment, then
-        // its relation (`CorrectionSpec::factors`).
+        // Each correction's factors follow the map's, its relation last.
         let mut at = self.num_base_factors();
         let relation_weights = specs
             .iter()
             .map(|c| {
-                at += c.a.len() + c.b.len() + 1;
+                at += c.num_factors();
                 report.weights.get(at - 1).copied().unwrap_or(1.0)
             })
             .collect();
@@ -412,7 +411,13 @@ impl CorrectionEngine {
             (h, solved) =
                 self.consistency_guard(scans, current, drawing, h, solved, before, active, p)?;
         }
-        let before_weights = self.relation_weights_at(scans, current, active, p)?;
+        // The weights on the map as shown matter only where an earlier relation yields now.
+        let earlier = &solved.relation_weights[..active.len().min(solved.relation_weights.len())];
+        let before_weights = if earlier.iter().any(|w| *w < YIELDED) {
+            self.relation_weights_at(scans, current, active, p)?
+        } else {
+            Vec::new()
+        };
         if let Some(note) =
             contradicted_note(&solved.relation_weights, &before_weights, solved.contested)
         {

@@ -98,6 +98,12 @@ impl CorrectionSpec {
         Ok(())
     }
 
+    /// How many factors [`Self::factors`] makes: one per observing pose and segment, then the
+    /// relation (the last).
+    pub fn num_factors(&self) -> usize {
+        self.a.len() + self.b.len() + 1
+    }
+
     /// The factors of this correction (docs/ALGORITHM.md §4.3) over lines `la` and `la + 1`: one
     /// point-to-line factor per observing pose and segment, then the relation R_p.
     pub fn factors(&self, la: usize, w: &HumanWeights) -> Result<Vec<Box<dyn Factor>>> {
@@ -107,7 +113,7 @@ impl CorrectionSpec {
             w.point_weight(count(&self.a)),
             w.point_weight(count(&self.b)),
         );
-        let mut factors: Vec<Box<dyn Factor>> = Vec::with_capacity(self.a.len() + self.b.len() + 1);
+        let mut factors: Vec<Box<dyn Factor>> = Vec::with_capacity(self.num_factors());
         let mut shares = Vec::with_capacity(self.a.len() + self.b.len());
         for (set, weight, is_a) in [(&self.a, wa, true), (&self.b, wb, false)] {
             for (i, pts) in set {
