@@ -75,9 +75,10 @@ def _observe(pose: FloatArray, rng: np.random.Generator) -> FloatArray:
 
 
 def copies_world(
-    errors: list[tuple[float, float, float]], seed: int = 0, n: int = 50
+    errors: list[tuple[float, float, float]], seed: int = 0, n: int | list[int] = 50
 ) -> CopiesWorld:
-    """One corridor pass of `n` poses per lap (alternating directions), then 20 poses out to
+    """One corridor pass of `n` poses per lap (or `n[k]` on lap k: a lap driven faster is a
+    sparser copy; alternating directions), then 20 poses out to
     WALL_FAR and back, in 2-3 m steps (odometry as weak as a long drive, not a teleport). Lap
     k's error applies from the far point before its pass to the far point after it, so each
     copy changes where no wall is seen."""
@@ -86,12 +87,14 @@ def copies_world(
     count = 0
     far = np.array([46.0, 31.5])
     t_out, t_back = np.linspace(0.0, 1.0, 11)[1:], np.linspace(1.0, 0.0, 11)[1:]
+    sizes = [n] * len(errors) if isinstance(n, int) else list(n)
     for k, err in enumerate(errors):
-        xs = np.linspace(1.0, 13.0, n)
+        size = sizes[k]
+        xs = np.linspace(1.0, 13.0, size)
         heading = 0.0 if k % 2 == 0 else math.pi
         if k % 2:
             xs = xs[::-1]
-        lap = np.stack([xs, np.full(n, 1.5), np.full(n, heading)], axis=1)
+        lap = np.stack([xs, np.full(size, 1.5), np.full(size, heading)], axis=1)
         pieces = []
         if k > 0:  # back from the far point to where this pass starts
             back = lap[0, :2] + t_back[:, None] * (far - lap[0, :2])
@@ -107,7 +110,7 @@ def copies_world(
         est[:, 2] += err[2]
         true_parts.append(part)
         est_parts.append(est)
-        laps.append(np.arange(first, first + n))
+        laps.append(np.arange(first, first + size))
         parts.append(np.arange(count, count + len(part)))
         count += len(part)
     true = np.concatenate(true_parts)

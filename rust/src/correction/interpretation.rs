@@ -703,7 +703,7 @@ pub fn interpret(
     for s in [&a, &b] {
         notes.push(format!(
             "segment {}: EM {} after {} iterations, {} of {} candidates on the line, {} from {} \
-             poses with >= {t_p} (log-likelihood {:.1})",
+             poses with >= {t_p} (log-likelihood {:.1}){}",
             s.name,
             if s.fit.converged {
                 "converged"
@@ -715,7 +715,16 @@ pub fn interpret(
             s.fit.candidates.len(),
             s.rows.len(),
             s.poses().len(),
-            s.fit.log_likelihood
+            s.fit.log_likelihood,
+            if s.fit.band < band {
+                format!(
+                    "; on a band of {:.2} m around the line, since at {band:.2} m other copies \
+                     beside it pulled EM off it",
+                    s.fit.band
+                )
+            } else {
+                String::new()
+            }
         ));
     }
     for s in [&mut a, &mut b] {
