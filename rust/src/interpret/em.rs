@@ -126,12 +126,13 @@ pub struct EmFit {
 }
 
 /// Half-width of the band, in `sigma_em`, that EM is run again on around a snapped line it lost
-/// at the full candidate band. A sparse copy of a wall with a dense one 0.2-0.3 m beside it
-/// (a doubled corridor) is found by the search (its support against the drawing's offset), but
-/// EM's clutter component is uniform over the band: the dense copy is no such clutter, it pulls
-/// the weighted fit off the sparse line, the mixing weight collapses and every responsibility
-/// ends below 0.5. Four sigma keeps the line's own spread (a pass blurred by a few centimetres)
-/// and leaves the neighbouring copies out.
+/// at the full candidate band. A sparse copy of a wall with other copies 0.15-0.45 m beside it
+/// (passes of a doubled corridor) is found by the search (its support against the drawing's
+/// offset), but EM's clutter component is uniform over the band, and the other copies are no
+/// such clutter: they hold most of the band's points, the mixing weight sinks until even a point
+/// on the line has a responsibility below 0.5, and nothing is kept although the line stays put
+/// (docs/ALGORITHM.md §I.9). Four sigma keeps the line's own spread (a pass blurred by a few
+/// centimetres) and leaves the neighbouring copies out.
 pub const NARROW_BAND_SIGMAS: f64 = 4.0;
 
 /// The model's constants, precomputed once per run.
