@@ -718,8 +718,8 @@ pub fn interpret(
             s.fit.log_likelihood,
             if s.fit.band < band {
                 format!(
-                    "; on a band of {:.2} m around the line, since at {band:.2} m the other \
-                     copies beside it left none of its points at even odds",
+                    "; on a band of {:.2} m around the line, since at {band:.2} m, among the \
+                     other copies beside it, EM held fewer than half of its points",
                     s.fit.band
                 )
             } else {
