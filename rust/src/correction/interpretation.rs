@@ -8,7 +8,7 @@ use super::scans::{Row, Scans};
 use crate::error::{HitlError, Result};
 use crate::factors::RelationMode;
 use crate::interpret::{
-    em_fit_near, line_fit, reach, EmFit, EmParams, Points, Segment, SnapParams,
+    em_fit_near, line_fit, reach, EmFit, EmParams, Points, Segment, SnapParams, WorldPoints,
 };
 use crate::se2::Pose2;
 
@@ -348,6 +348,150 @@ fn joint_visits(
         sel.keep_poses(&vs[kept].poses);
     }
     Ok(true)
+}
+
+/// RMS distance to `sel`'s drawn line of its points seen from the poses `keep` says yes to.
+fn rms_to_drawing(
+    sel: &Selection,
+    scans: &Scans,
+    poses: &[Pose2],
+    keep: impl Fn(i64) -> bool,
+) -> Result<Option<f64>> {
+    let rows: Vec<Row> = sel.rows.iter().copied().filter(|r| keep(r[0])).collect();
+    if rows.is_empty() {
+        return Ok(None);
+    }
+    let [p0, p1] = sel.drawn;
+    let d = [p1[0] - p0[0], p1[1] - p0[1]];
+    let len = d[0].hypot(d[1]);
+    let normal = [-d[1] / len, d[0] / len];
+    let sum: f64 = scans
+        .world(poses, &rows)?
+        .iter()
+        .map(|w| ((w[0] - p0[0]) * normal[0] + (w[1] - p0[1]) * normal[1]).powi(2))
+        .sum();
+    Ok(Some((sum / rows.len() as f64).sqrt()))
+}
+
+/// What a segment interpreted again needs: the candidates near both segments (world points
+/// and their map rows), EM and the snapping search.
+struct Refit<'a> {
+    world: &'a WorldPoints,
+    rows: &'a [usize],
+    em: &'a EmParams,
+    snap: Option<&'a SnapParams>,
+    min_points: usize,
+}
+
+impl Refit<'_> {
+    /// `sel`'s segment interpreted again (snapping and EM) on the candidates that are not
+    /// observed from the poses `shared` (ascending). None when nothing is selected.
+    fn without(&self, sel: &Selection, scans: &Scans, shared: &[i64]) -> Result<Option<Selection>> {
+        let mut flat = Vec::with_capacity(self.world.flat.len());
+        let mut rows = Vec::with_capacity(self.rows.len());
+        for (xy, &k) in self.world.flat.chunks_exact(2).zip(self.rows) {
+            if shared.binary_search(&scans.row_of(k)[0]).is_err() {
+                flat.extend_from_slice(xy);
+                rows.push(k);
+            }
+        }
+        if rows.is_empty() {
+            return Ok(None);
+        }
+        let world = WorldPoints {
+            flat,
+            bounds: self.world.bounds,
+        };
+        let seg = Segment::new(sel.drawn[0], sel.drawn[1]);
+        let Some(fit) = em_fit_near(&world, &rows, &[seg], self.em, self.snap)?.pop() else {
+            return Ok(None);
+        };
+        let again = select(sel.name, sel.drawn, fit, scans, self.min_points);
+        Ok((!again.rows.is_empty()).then_some(again))
+    }
+}
+
+/// Where both segments selected one pass (the pair rules refused "the same visit"), each
+/// segment in turn is interpreted again without that pass's observations, and the pair is
+/// kept if the rules accept it and the new selection lies nearer its drawing than the shared
+/// pass does: a segment drawn on a sparse copy a few centimetres from a denser one snaps to
+/// the denser line, and the copy the person drew on is the one left when that line is taken
+/// out. The better-scoring of the two pairs (docs/ALGORITHM.md §I.2's score) wins. None
+/// (the refusal stands) when neither qualifies.
+fn apart(
+    a: &Selection,
+    b: &Selection,
+    refit: &Refit<'_>,
+    scans: &Scans,
+    poses: &[Pose2],
+    gap: usize,
+    sigma_c: f64,
+) -> Result<Option<(Paired, Vec<String>)>> {
+    let xb = b.poses();
+    let shared: Vec<i64> = a
+        .poses()
+        .into_iter()
+        .filter(|p| xb.binary_search(p).is_ok())
+        .collect();
+    if shared.is_empty() {
+        return Ok(None);
+    }
+    let is_shared = |p: i64| shared.binary_search(&p).is_ok();
+    let score = |s: &Selection| -> Result<f64> {
+        let rms = rms_to_drawing(s, scans, poses, |_| true)?.unwrap_or(f64::INFINITY);
+        Ok((s.rows.len() as f64).ln() - rms * rms / (2.0 * sigma_c * sigma_c))
+    };
+    let mut best: Option<(f64, Paired, Vec<String>)> = None;
+    for redo_b in [true, false] {
+        let (keep, redo) = if redo_b { (a, b) } else { (b, a) };
+        let Some(shared_rms) = rms_to_drawing(redo, scans, poses, is_shared)? else {
+            continue;
+        };
+        let Some(again) = refit.without(redo, scans, &shared)? else {
+            continue;
+        };
+        let (mut sa, mut sb) = if redo_b {
+            (keep.clone(), again)
+        } else {
+            (again, keep.clone())
+        };
+        let mut notes = Vec::new();
+        joint_visits(&mut sa, &mut sb, scans, poses, gap, sigma_c, &mut notes)?;
+        let Ok(paired) = pair_rules(sa, sb, gap, &mut notes) else {
+            continue;
+        };
+        let redone = if paired.a.name == redo.name {
+            &paired.a
+        } else {
+            &paired.b
+        };
+        let Some(new_rms) = rms_to_drawing(redone, scans, poses, |_| true)? else {
+            continue;
+        };
+        if new_rms >= shared_rms {
+            continue;
+        }
+        let total = score(&paired.a)? + score(&paired.b)?;
+        notes.insert(
+            0,
+            format!(
+                "segments a and b both selected poses {} (segment {}'s points there {:.2} m from \
+                 its drawing); segment {} interpreted again without them selects poses {} \
+                 ({} points, {:.2} m from its drawing)",
+                span(&shared),
+                redo.name,
+                shared_rms,
+                redo.name,
+                span(&redone.poses()),
+                redone.rows.len(),
+                new_rms
+            ),
+        );
+        if best.as_ref().is_none_or(|(t, _, _)| total > *t) {
+            best = Some((total, paired, notes));
+        }
+    }
+    Ok(best.map(|(_, paired, notes)| (paired, notes)))
 }
 
 /// The pair rules' outcome: the two selections in time order and their poses.
@@ -771,25 +915,49 @@ pub fn interpret(
     let gap = p.visit_gap;
     // The design's pair rules first (each segment's biggest visit); only where they refuse are
     // the visits chosen jointly, which keeps every drawing the rules accept as before.
-    let paired = if nearest_visits && !same_drawing {
-        joint_visits(&mut a, &mut b, scans, poses, gap, sigma_c, &mut notes)?;
-        pair_rules(a, b, gap, &mut notes)?
+    let (a0, b0) = (a.clone(), b.clone());
+    let mut trial = notes.clone();
+    let first = if nearest_visits && !same_drawing {
+        joint_visits(&mut a, &mut b, scans, poses, gap, sigma_c, &mut trial)?;
+        pair_rules(a, b, gap, &mut trial)
     } else {
-        let mut trial = notes.clone();
         match pair_rules(a.clone(), b.clone(), gap, &mut trial) {
-            Ok(paired) => {
-                notes = trial;
-                paired
-            }
+            Ok(paired) => Ok(paired),
             Err(first) => {
+                trial = notes.clone();
                 if same_drawing
-                    || !joint_visits(&mut a, &mut b, scans, poses, gap, sigma_c, &mut notes)?
+                    || !joint_visits(&mut a, &mut b, scans, poses, gap, sigma_c, &mut trial)?
                 {
-                    return Err(first);
+                    Err(first)
+                } else {
+                    pair_rules(a, b, gap, &mut trial)
                 }
-                pair_rules(a, b, gap, &mut notes)?
             }
         }
+    };
+    let paired = match first {
+        Ok(paired) => {
+            notes = trial;
+            paired
+        }
+        // Both segments on one pass: the one drawn beside it may mean a copy next to it.
+        Err(HitlError::Rejected(why)) if !same_drawing && search > 0.0 => {
+            let refit = Refit {
+                world: &world,
+                rows: &rows,
+                em: &em,
+                snap: snap.as_ref(),
+                min_points: t_p,
+            };
+            match apart(&a0, &b0, &refit, scans, poses, gap, sigma_c)? {
+                Some((paired, more)) => {
+                    notes.extend(more);
+                    paired
+                }
+                None => return rejected(why),
+            }
+        }
+        Err(e) => return Err(e),
     };
     let line_a = refit(&paired.a, scans, poses, band)?;
     let line_b = refit(&paired.b, scans, poses, band)?;
