@@ -292,7 +292,11 @@ fn visits(sel: &Selection, scans: &Scans, poses: &[Pose2], gap: usize) -> Result
 
 /// Chooses one visit per segment jointly: the pair of visits, one before the other in time,
 /// with the best summed score (support against distance to each drawing). False (nothing
-/// changed) when no two visits are apart in time.
+/// changed) when no two visits are apart in time. A segment whose EM line held several visits
+/// is, with `refit`, interpreted again on the kept visit's points alone: its selection was of
+/// points near the line of the mixture, clutter among them, and the line fitted to them leaned
+/// towards the dropped copies by up to a decimetre at one end.
+#[allow(clippy::too_many_arguments)]
 fn joint_visits(
     a: &mut Selection,
     b: &mut Selection,
@@ -300,6 +304,7 @@ fn joint_visits(
     poses: &[Pose2],
     gap: usize,
     sigma_c: f64,
+    refit: Option<&Refit<'_>>,
     notes: &mut Vec<String>,
 ) -> Result<bool> {
     let (va, vb) = (visits(a, scans, poses, gap)?, visits(b, scans, poses, gap)?);
@@ -345,7 +350,25 @@ fn joint_visits(
                 dropped.join(", ")
             ));
         }
-        sel.keep_poses(&vs[kept].poses);
+        let kept_poses = &vs[kept].poses;
+        let alone = match refit {
+            Some(r) if vs.len() > 1 => {
+                r.on(sel, scans, |p| kept_poses.binary_search(&p).is_ok())?
+            }
+            _ => None,
+        };
+        match alone {
+            Some(again) => {
+                notes.push(format!(
+                    "segment {}: interpreted again on poses {} alone, {} points",
+                    sel.name,
+                    span(kept_poses),
+                    again.rows.len()
+                ));
+                *sel = again;
+            }
+            None => sel.keep_poses(kept_poses),
+        }
     }
     Ok(true)
 }
@@ -384,13 +407,18 @@ struct Refit<'a> {
 }
 
 impl Refit<'_> {
-    /// `sel`'s segment interpreted again (snapping and EM) on the candidates that are not
-    /// observed from the poses `shared` (ascending). None when nothing is selected.
-    fn without(&self, sel: &Selection, scans: &Scans, shared: &[i64]) -> Result<Option<Selection>> {
+    /// `sel`'s segment interpreted again (snapping and EM) on the candidates observed from the
+    /// poses `keep` says yes to. None when nothing is selected.
+    fn on(
+        &self,
+        sel: &Selection,
+        scans: &Scans,
+        keep: impl Fn(i64) -> bool,
+    ) -> Result<Option<Selection>> {
         let mut flat = Vec::with_capacity(self.world.flat.len());
         let mut rows = Vec::with_capacity(self.rows.len());
         for (xy, &k) in self.world.flat.chunks_exact(2).zip(self.rows) {
-            if shared.binary_search(&scans.row_of(k)[0]).is_err() {
+            if keep(scans.row_of(k)[0]) {
                 flat.extend_from_slice(xy);
                 rows.push(k);
             }
@@ -447,7 +475,7 @@ fn apart(
         let Some(shared_rms) = rms_to_drawing(redo, scans, poses, is_shared)? else {
             continue;
         };
-        let Some(again) = refit.without(redo, scans, &shared)? else {
+        let Some(again) = refit.on(redo, scans, |p| !is_shared(p))? else {
             continue;
         };
         let (mut sa, mut sb) = if redo_b {
@@ -456,7 +484,16 @@ fn apart(
             (again, keep.clone())
         };
         let mut notes = Vec::new();
-        joint_visits(&mut sa, &mut sb, scans, poses, gap, sigma_c, &mut notes)?;
+        joint_visits(
+            &mut sa,
+            &mut sb,
+            scans,
+            poses,
+            gap,
+            sigma_c,
+            Some(refit),
+            &mut notes,
+        )?;
         let Ok(paired) = pair_rules(sa, sb, gap, &mut notes) else {
             continue;
         };
@@ -915,10 +952,26 @@ pub fn interpret(
     let gap = p.visit_gap;
     // The design's pair rules first (each segment's biggest visit); only where they refuse are
     // the visits chosen jointly, which keeps every drawing the rules accept as before.
+    let refitter = Refit {
+        world: &world,
+        rows: &rows,
+        em: &em,
+        snap: snap.as_ref(),
+        min_points: t_p,
+    };
     let (a0, b0) = (a.clone(), b.clone());
     let mut trial = notes.clone();
     let first = if nearest_visits && !same_drawing {
-        joint_visits(&mut a, &mut b, scans, poses, gap, sigma_c, &mut trial)?;
+        joint_visits(
+            &mut a,
+            &mut b,
+            scans,
+            poses,
+            gap,
+            sigma_c,
+            Some(&refitter),
+            &mut trial,
+        )?;
         pair_rules(a, b, gap, &mut trial)
     } else {
         match pair_rules(a.clone(), b.clone(), gap, &mut trial) {
@@ -926,7 +979,16 @@ pub fn interpret(
             Err(first) => {
                 trial = notes.clone();
                 if same_drawing
-                    || !joint_visits(&mut a, &mut b, scans, poses, gap, sigma_c, &mut trial)?
+                    || !joint_visits(
+                        &mut a,
+                        &mut b,
+                        scans,
+                        poses,
+                        gap,
+                        sigma_c,
+                        Some(&refitter),
+                        &mut trial,
+                    )?
                 {
                     Err(first)
                 } else {
@@ -942,14 +1004,7 @@ pub fn interpret(
         }
         // Both segments on one pass: the one drawn beside it may mean a copy next to it.
         Err(HitlError::Rejected(why)) if !same_drawing && search > 0.0 => {
-            let refit = Refit {
-                world: &world,
-                rows: &rows,
-                em: &em,
-                snap: snap.as_ref(),
-                min_points: t_p,
-            };
-            match apart(&a0, &b0, &refit, scans, poses, gap, sigma_c)? {
+            match apart(&a0, &b0, &refitter, scans, poses, gap, sigma_c)? {
                 Some((paired, more)) => {
                     notes.extend(more);
                     paired
