@@ -959,37 +959,20 @@ pub fn interpret(
         snap: snap.as_ref(),
         min_points: t_p,
     };
+    let choose = |a: &mut Selection, b: &mut Selection, notes: &mut Vec<String>| {
+        joint_visits(a, b, scans, poses, gap, sigma_c, Some(&refitter), notes)
+    };
     let (a0, b0) = (a.clone(), b.clone());
     let mut trial = notes.clone();
     let first = if nearest_visits && !same_drawing {
-        joint_visits(
-            &mut a,
-            &mut b,
-            scans,
-            poses,
-            gap,
-            sigma_c,
-            Some(&refitter),
-            &mut trial,
-        )?;
+        choose(&mut a, &mut b, &mut trial)?;
         pair_rules(a, b, gap, &mut trial)
     } else {
         match pair_rules(a.clone(), b.clone(), gap, &mut trial) {
             Ok(paired) => Ok(paired),
             Err(first) => {
                 trial = notes.clone();
-                if same_drawing
-                    || !joint_visits(
-                        &mut a,
-                        &mut b,
-                        scans,
-                        poses,
-                        gap,
-                        sigma_c,
-                        Some(&refitter),
-                        &mut trial,
-                    )?
-                {
+                if same_drawing || !choose(&mut a, &mut b, &mut trial)? {
                     Err(first)
                 } else {
                     pair_rules(a, b, gap, &mut trial)
