@@ -175,9 +175,11 @@ def test_a_result_beyond_the_odometry_noise_is_tried_again_or_refused(seed: int)
     broken[step:, :2] = broken[step - 1, :2] + rel @ np.array([[c, s_], [-s_, c]])
     broken[step:, 2] += turn[2]
     assert engine.base_chi2(broken) > limit
-    # A drawing whose nearest passes are the ones kept: nothing else to try, refused.
+    # A drawing whose nearest passes are the ones kept (the guard's own retry, interpreted
+    # with the nearest visits, selects the same observations): nothing else to try, refused.
+    nearest = interpret(m, poses, drawn, nearest_visits=True)
     with pytest.raises(CorrectionRejected, match=r"chi2 would go from \d+ to \d+, beyond"):
-        guard(h, broken)
+        guard(nearest, broken)
     # A first interpretation that kept other passes: the nearest ones are solved and applied.
     other = dataclasses.replace(h, s_a=h.s_a[: max(1, len(h.s_a) // 2)])
     out = guard(other, broken)
