@@ -259,35 +259,60 @@ impl Visit {
     }
 }
 
-fn visits(sel: &Selection, scans: &Scans, poses: &[Pose2], gap: usize) -> Result<Vec<Visit>> {
-    let world = scans.world(poses, &sel.rows)?;
+/// Signed distance of each of `sel`'s points (at `poses`) to its drawn line.
+fn offsets_from_drawing(sel: &Selection, scans: &Scans, poses: &[Pose2]) -> Result<Vec<f64>> {
     let [p0, p1] = sel.drawn;
     let d = [p1[0] - p0[0], p1[1] - p0[1]];
     let len = d[0].hypot(d[1]);
     let normal = [-d[1] / len, d[0] / len];
-    let dist: Vec<f64> = world
+    Ok(scans
+        .world(poses, &sel.rows)?
         .iter()
         .map(|w| (w[0] - p0[0]) * normal[0] + (w[1] - p0[1]) * normal[1])
-        .collect();
+        .collect())
+}
+
+/// `sel`'s points from the poses `keep` says yes to as one visit of `poses`, with `dist` its
+/// points' [`offsets_from_drawing`]; `None` when it has no such point.
+fn visit_of(
+    sel: &Selection,
+    dist: &[f64],
+    poses: Vec<i64>,
+    keep: impl Fn(i64) -> bool,
+) -> Option<Visit> {
+    let (mut count, mut sum) = (0usize, 0.0);
+    for (r, e) in sel.rows.iter().zip(dist) {
+        if keep(r[0]) {
+            count += 1;
+            sum += e * e;
+        }
+    }
+    (count > 0).then(|| Visit {
+        poses,
+        points: count,
+        rms: (sum / count as f64).sqrt(),
+    })
+}
+
+fn visits(sel: &Selection, scans: &Scans, poses: &[Pose2], gap: usize) -> Result<Vec<Visit>> {
+    let dist = offsets_from_drawing(sel, scans, poses)?;
     Ok(sel
         .runs(gap)
         .into_iter()
-        .map(|(run, _)| {
+        .filter_map(|(run, _)| {
             let (lo, hi) = (run[0], run[run.len() - 1]);
-            let (mut count, mut sum) = (0usize, 0.0);
-            for (r, e) in sel.rows.iter().zip(&dist) {
-                if r[0] >= lo && r[0] <= hi && run.binary_search(&r[0]).is_ok() {
-                    count += 1;
-                    sum += e * e;
-                }
-            }
-            Visit {
-                poses: run,
-                points: count,
-                rms: (sum / count as f64).sqrt(),
-            }
+            let within = run.clone();
+            visit_of(sel, &dist, run, |p| {
+                p >= lo && p <= hi && within.binary_search(&p).is_ok()
+            })
         })
         .collect())
+}
+
+/// All of `sel` as one visit (its poses, points and RMS distance to its drawing).
+fn whole_visit(sel: &Selection, scans: &Scans, poses: &[Pose2]) -> Result<Option<Visit>> {
+    let dist = offsets_from_drawing(sel, scans, poses)?;
+    Ok(visit_of(sel, &dist, sel.poses(), |_| true))
 }
 
 /// Chooses one visit per segment jointly: the pair of visits, one before the other in time,
@@ -373,29 +398,6 @@ fn joint_visits(
     Ok(true)
 }
 
-/// RMS distance to `sel`'s drawn line of its points seen from the poses `keep` says yes to.
-fn rms_to_drawing(
-    sel: &Selection,
-    scans: &Scans,
-    poses: &[Pose2],
-    keep: impl Fn(i64) -> bool,
-) -> Result<Option<f64>> {
-    let rows: Vec<Row> = sel.rows.iter().copied().filter(|r| keep(r[0])).collect();
-    if rows.is_empty() {
-        return Ok(None);
-    }
-    let [p0, p1] = sel.drawn;
-    let d = [p1[0] - p0[0], p1[1] - p0[1]];
-    let len = d[0].hypot(d[1]);
-    let normal = [-d[1] / len, d[0] / len];
-    let sum: f64 = scans
-        .world(poses, &rows)?
-        .iter()
-        .map(|w| ((w[0] - p0[0]) * normal[0] + (w[1] - p0[1]) * normal[1]).powi(2))
-        .sum();
-    Ok(Some((sum / rows.len() as f64).sqrt()))
-}
-
 /// What a segment interpreted again needs: the candidates near both segments (world points
 /// and their map rows), EM and the snapping search.
 struct Refit<'a> {
@@ -465,14 +467,12 @@ fn apart(
         return Ok(None);
     }
     let is_shared = |p: i64| shared.binary_search(&p).is_ok();
-    let score = |s: &Selection| -> Result<f64> {
-        let rms = rms_to_drawing(s, scans, poses, |_| true)?.unwrap_or(f64::INFINITY);
-        Ok((s.rows.len() as f64).ln() - rms * rms / (2.0 * sigma_c * sigma_c))
-    };
     let mut best: Option<(f64, Paired, Vec<String>)> = None;
     for redo_b in [true, false] {
         let (keep, redo) = if redo_b { (a, b) } else { (b, a) };
-        let Some(shared_rms) = rms_to_drawing(redo, scans, poses, is_shared)? else {
+        let dist = offsets_from_drawing(redo, scans, poses)?;
+        let Some(shared_rms) = visit_of(redo, &dist, shared.clone(), is_shared).map(|v| v.rms)
+        else {
             continue;
         };
         let Some(again) = refit.on(redo, scans, |p| !is_shared(p))? else {
@@ -497,18 +497,21 @@ fn apart(
         let Ok(paired) = pair_rules(sa, sb, gap, &mut notes) else {
             continue;
         };
-        let redone = if paired.a.name == redo.name {
-            &paired.a
-        } else {
-            &paired.b
-        };
-        let Some(new_rms) = rms_to_drawing(redone, scans, poses, |_| true)? else {
+        let (Some(va), Some(vb)) = (
+            whole_visit(&paired.a, scans, poses)?,
+            whole_visit(&paired.b, scans, poses)?,
+        ) else {
             continue;
+        };
+        let (redone, new_rms) = if paired.a.name == redo.name {
+            (&paired.a, va.rms)
+        } else {
+            (&paired.b, vb.rms)
         };
         if new_rms >= shared_rms {
             continue;
         }
-        let total = score(&paired.a)? + score(&paired.b)?;
+        let total = va.score(sigma_c) + vb.score(sigma_c);
         notes.insert(
             0,
             format!(
