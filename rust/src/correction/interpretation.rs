@@ -317,11 +317,7 @@ fn whole_visit(sel: &Selection, scans: &Scans, poses: &[Pose2]) -> Result<Option
 
 /// Chooses one visit per segment jointly: the pair of visits, one before the other in time,
 /// with the best summed score (support against distance to each drawing). False (nothing
-/// changed) when no two visits are apart in time. A segment whose EM line held several visits
-/// is, with `refit`, interpreted again on the kept visit's points alone: its selection was of
-/// points near the line of the mixture, clutter among them, and the line fitted to them leaned
-/// towards the dropped copies by up to a decimetre at one end.
-#[allow(clippy::too_many_arguments)]
+/// changed) when no two visits are apart in time.
 fn joint_visits(
     a: &mut Selection,
     b: &mut Selection,
@@ -329,7 +325,6 @@ fn joint_visits(
     poses: &[Pose2],
     gap: usize,
     sigma_c: f64,
-    refit: Option<&Refit<'_>>,
     notes: &mut Vec<String>,
 ) -> Result<bool> {
     let (va, vb) = (visits(a, scans, poses, gap)?, visits(b, scans, poses, gap)?);
@@ -375,25 +370,7 @@ fn joint_visits(
                 dropped.join(", ")
             ));
         }
-        let kept_poses = &vs[kept].poses;
-        let alone = match refit {
-            Some(r) if vs.len() > 1 => {
-                r.on(sel, scans, |p| kept_poses.binary_search(&p).is_ok())?
-            }
-            _ => None,
-        };
-        match alone {
-            Some(again) => {
-                notes.push(format!(
-                    "segment {}: interpreted again on poses {} alone, {} points",
-                    sel.name,
-                    span(kept_poses),
-                    again.rows.len()
-                ));
-                *sel = again;
-            }
-            None => sel.keep_poses(kept_poses),
-        }
+        sel.keep_poses(&vs[kept].poses);
     }
     Ok(true)
 }
@@ -484,16 +461,7 @@ fn apart(
             (again, keep.clone())
         };
         let mut notes = Vec::new();
-        joint_visits(
-            &mut sa,
-            &mut sb,
-            scans,
-            poses,
-            gap,
-            sigma_c,
-            Some(refit),
-            &mut notes,
-        )?;
+        joint_visits(&mut sa, &mut sb, scans, poses, gap, sigma_c, &mut notes)?;
         let Ok(paired) = pair_rules(sa, sb, gap, &mut notes) else {
             continue;
         };
@@ -955,15 +923,8 @@ pub fn interpret(
     let gap = p.visit_gap;
     // The design's pair rules first (each segment's biggest visit); only where they refuse are
     // the visits chosen jointly, which keeps every drawing the rules accept as before.
-    let refitter = Refit {
-        world: &world,
-        rows: &rows,
-        em: &em,
-        snap: snap.as_ref(),
-        min_points: t_p,
-    };
     let choose = |a: &mut Selection, b: &mut Selection, notes: &mut Vec<String>| {
-        joint_visits(a, b, scans, poses, gap, sigma_c, Some(&refitter), notes)
+        joint_visits(a, b, scans, poses, gap, sigma_c, notes)
     };
     let (a0, b0) = (a.clone(), b.clone());
     let mut trial = notes.clone();
@@ -990,6 +951,13 @@ pub fn interpret(
         }
         // Both segments on one pass: the one drawn beside it may mean a copy next to it.
         Err(HitlError::Rejected(why)) if !same_drawing && search > 0.0 => {
+            let refitter = Refit {
+                world: &world,
+                rows: &rows,
+                em: &em,
+                snap: snap.as_ref(),
+                min_points: t_p,
+            };
             match apart(&a0, &b0, &refitter, scans, poses, gap, sigma_c)? {
                 Some((paired, more)) => {
                     notes.extend(more);
