@@ -219,7 +219,7 @@ impl SE2Log {
     #[inline]
     pub fn new(t: [f64; 2], theta: f64) -> (Self, f64, f64) {
         let h = 0.5 * theta;
-        let (sh, ch) = h.sin_cos();
+        let (sh, ch) = crate::se2::sin_cos(h);
         let (c, s) = (1.0 - 2.0 * sh * sh, 2.0 * sh * ch);
         let (a, da) = if theta.abs() < 1e-2 {
             (vinv_diag(theta), vinv_diag_derivative(theta))

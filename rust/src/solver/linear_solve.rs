@@ -6,12 +6,13 @@
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
-use faer::sparse::linalg::cholesky::LltRef;
+use faer::sparse::linalg::cholesky::{LltRef, SymbolicCholesky};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side, Spec};
 
+use super::factor::Cholesky;
 use super::pattern::SparsityPattern;
-use super::woodbury::{Cholesky, LowRank};
+use super::woodbury::LowRank;
 use crate::error::{HitlError, Result};
 
 /// `y = A x` and `z = |A| |x|` (for the backward error of a refinement step) for a symmetric A
@@ -82,10 +83,27 @@ pub(super) struct ChordWork {
     damp: Vec<f64>,
 }
 
-/// `A^-1 x` in place for the columns of `x` (n rows each), through A's numeric factor.
-fn solve_in_place(llt: LltRef<'_, usize, f64>, mem: &mut MemBuffer, x: &mut [f64], n: usize) {
-    let rhs = MatMut::from_column_major_slice_mut(x, n, x.len() / n);
-    llt.solve_in_place_with_conj(Conj::No, rhs, Par::Seq, MemStack::new(mem));
+/// `A^-1 x` in place for the columns of `x` (n rows each), through A's numeric factor: column
+/// by column with `Cholesky`'s plain loops where the factor's layout allows (`plain`), else
+/// with faer's solve.
+fn solve_in_place(
+    symbolic: &SymbolicCholesky<usize>,
+    l_values: &[f64],
+    plain: bool,
+    mem: &mut MemBuffer,
+    x: &mut [f64],
+    n: usize,
+) {
+    if plain {
+        let l = Cholesky { symbolic, l_values };
+        for col in x.chunks_mut(n) {
+            l.solve(col);
+        }
+    } else {
+        let llt = LltRef::new(symbolic, l_values);
+        let rhs = MatMut::from_column_major_slice_mut(x, n, x.len() / n);
+        llt.solve_in_place_with_conj(Conj::No, rhs, Par::Seq, MemStack::new(mem));
+    }
 }
 
 /// Entry of the damping matrix D for a diagonal entry `h_kk` of the full H: `h_kk` clamped to
@@ -147,9 +165,15 @@ impl SparsityPattern {
         if !self.factorize(Some((mu, diagonal))) {
             return Ok(false);
         }
-        let llt = LltRef::new(&self.symbolic, &self.l_values);
         if self.wide.rank() == 0 {
-            solve_in_place(llt, &mut self.mem, delta, n);
+            solve_in_place(
+                &self.symbolic,
+                &self.l_values,
+                self.plain_solves,
+                &mut self.mem,
+                delta,
+                n,
+            );
         } else {
             let l = Cholesky {
                 symbolic: &self.symbolic,
@@ -212,9 +236,9 @@ impl SparsityPattern {
         }
         let g2 = dot(r, r);
         let limit = eta * eta * g2;
-        let llt = LltRef::new(&self.symbolic, &self.l_values);
+        let (symbolic, l_values, plain) = (&self.symbolic, &self.l_values[..], self.plain_solves);
         z.copy_from_slice(r);
-        solve_in_place(llt, &mut self.mem, z, n);
+        solve_in_place(symbolic, l_values, plain, &mut self.mem, z, n);
         p.copy_from_slice(z);
         let mut rz = dot(r, z);
         let mut met = false;
@@ -246,7 +270,7 @@ impl SparsityPattern {
                 break;
             }
             z.copy_from_slice(r);
-            solve_in_place(llt, &mut self.mem, z, n);
+            solve_in_place(symbolic, l_values, plain, &mut self.mem, z, n);
             let rz_next = dot(r, z);
             let beta = rz_next / rz;
             rz = rz_next;
@@ -329,10 +353,16 @@ impl SparsityPattern {
             return Err(singular());
         }
         if self.wide.rank() == 0 {
-            let llt = LltRef::new(&self.symbolic, &self.l_values);
             // The workspace was sized for 3 right-hand sides; solve in chunks of 3.
             for chunk in cols.chunks_mut(3 * n) {
-                solve_in_place(llt, &mut self.mem, chunk, n);
+                solve_in_place(
+                    &self.symbolic,
+                    &self.l_values,
+                    self.plain_solves,
+                    &mut self.mem,
+                    chunk,
+                    n,
+                );
             }
         } else {
             let l = Cholesky {

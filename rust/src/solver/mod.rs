@@ -9,6 +9,7 @@
 
 mod assembly;
 mod dogleg;
+mod factor;
 mod gauss_newton;
 mod levenberg_marquardt;
 mod linear_solve;
