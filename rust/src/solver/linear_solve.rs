@@ -6,12 +6,13 @@
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
-use faer::sparse::linalg::cholesky::{LltRef, SymbolicCholesky};
+use faer::sparse::linalg::cholesky::{LltRef, SymbolicCholesky, SymbolicCholeskyRaw};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side, Spec};
 
 use super::factor::Cholesky;
 use super::pattern::SparsityPattern;
+use super::supernodal;
 use super::woodbury::LowRank;
 use crate::error::{HitlError, Result};
 
@@ -313,6 +314,16 @@ impl SparsityPattern {
             let (col_ptr, row_idx, values) = self.lower.gather(h, damping, weight);
             (col_ptr, row_idx, values, Side::Lower)
         };
+        if let (Side::Lower, SymbolicCholeskyRaw::Supernodal(sn)) = (side, self.symbolic.raw()) {
+            return supernodal::factorize(
+                sn,
+                col_ptr,
+                row_idx,
+                values,
+                &mut self.l_values,
+                &mut self.supernodal_work,
+            );
+        }
         let sym = SymbolicSparseColMatRef::new_checked(n, n, col_ptr, None, row_idx);
         self.symbolic
             .factorize_numeric_llt::<f64>(

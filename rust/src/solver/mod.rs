@@ -22,6 +22,7 @@ mod pattern;
 mod problem;
 mod report;
 mod robust;
+mod supernodal;
 #[cfg(test)]
 mod test_problems;
 mod woodbury;

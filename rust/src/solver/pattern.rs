@@ -23,6 +23,7 @@ use faer::{Par, Side, Spec};
 
 use super::factor::Cholesky;
 use super::ordering::block_amd;
+use super::supernodal::SupernodalWork;
 use super::woodbury::LowRank;
 use crate::error::{HitlError, Result};
 use crate::factors::Factor;
@@ -60,6 +61,7 @@ pub struct SparsityPattern {
     /// Whether the factor's layout lets every solve use `Cholesky`'s plain loops (always so for
     /// the unpermuted analysis below; checked once rather than trusted).
     pub(super) plain_solves: bool,
+    pub(super) supernodal_work: SupernodalWork,
     pub(super) mem: MemBuffer,
     pub(super) max_residual: usize,
     pub(super) max_jac: usize,
@@ -499,6 +501,7 @@ impl SparsityPattern {
             g_ahead: Vec::new(),
             l_values,
             plain_solves,
+            supernodal_work: SupernodalWork::default(),
             mem,
             max_residual,
             max_jac,

@@ -1,0 +1,375 @@
+//! Numeric supernodal Cholesky `A = L L^T` on faer's symbolic analysis (left-looking, as
+//! CHOLMOD's): each supernode gathers its columns of A, subtracts the updates of the supernodes
+//! below it in the elimination tree, and factors its panel in place. The layout of `L` is faer's
+//! (`col_ptr_for_val`, each supernode a column-major panel), so faer's and `Cholesky`'s solves
+//! read it as they read faer's own factor.
+//!
+//! Why not faer's `factorize_supernodal_numeric_llt`: on pose graphs a supernode is a few 3 x 3
+//! blocks wide and each update is a product of a few dozen rows by 3 to 15 columns; faer
+//! dispatches each to its general matrix product and dense Cholesky, whose set-up then costs as
+//! much as the arithmetic. The loops below are written for these sizes.
+
+use faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky;
+
+const NONE: usize = usize::MAX;
+
+/// Work arrays of [`factorize`], kept across factorizations.
+#[derive(Default)]
+pub(super) struct SupernodalWork {
+    /// Per row: its position in the current supernode's panel, or NONE.
+    local: Vec<usize>,
+    /// Per supernode: the first descendant waiting to update it (linked through `next`).
+    head: Vec<usize>,
+    next: Vec<usize>,
+    /// Per supernode: the position (in its panel's rows) of its next row not yet used to update.
+    pos: Vec<usize>,
+    /// Per row: the supernode holding it.
+    owner: Vec<usize>,
+    /// One column of an update, and its rows' positions in the target panel.
+    column: Vec<f64>,
+    target: Vec<usize>,
+    coefficients: Vec<[f64; 4]>,
+}
+
+/// A supernode's panel of L: `nrows x ncols`, column-major.
+#[derive(Clone, Copy)]
+struct Panel<'a> {
+    vals: &'a [f64],
+    nrows: usize,
+    ncols: usize,
+}
+
+/// `out[j m + i] = sum_c L_d[p0 + i, c] L_d[p0 + j, c]` for the `m` rows of d's panel from
+/// `p0` on and its first `nj` of them (`out` is `m x nj`, column-major; entries with `i < j`
+/// are computed too, and not used). Four columns of the product at a time, four rows at a time
+/// held in registers across d's columns: each value of L_d loaded feeds four products.
+#[inline(always)]
+fn update_product(
+    d: Panel<'_>,
+    p0: usize,
+    m: usize,
+    nj: usize,
+    out: &mut [f64],
+    bt: &mut Vec<[f64; 4]>,
+) {
+    let mut j = 0;
+    while j < nj {
+        let q = (nj - j).min(4);
+        // The four columns' coefficients, one row per column of L_d.
+        bt.clear();
+        bt.extend((0..d.ncols).map(|c| {
+            let base = c * d.nrows + p0 + j;
+            let mut b = [0.0f64; 4];
+            for (k, bk) in b.iter_mut().enumerate().take(q) {
+                *bk = d.vals[base + k];
+            }
+            b
+        }));
+        let mut i = j;
+        while i + 4 <= m {
+            let mut acc = [[0.0f64; 4]; 4];
+            for (c, b) in bt.iter().enumerate() {
+                let base = c * d.nrows + p0 + i;
+                let v: [f64; 4] = [
+                    d.vals[base],
+                    d.vals[base + 1],
+                    d.vals[base + 2],
+                    d.vals[base + 3],
+                ];
+                for (a, &bk) in acc.iter_mut().zip(b) {
+                    for r in 0..4 {
+                        a[r] += v[r] * bk;
+                    }
+                }
+            }
+            for (k, a) in acc.iter().take(q).enumerate() {
+                out[(j + k) * m + i..(j + k) * m + i + 4].copy_from_slice(a);
+            }
+            i += 4;
+        }
+        for i in i..m {
+            let mut s = [0.0f64; 4];
+            for (c, b) in bt.iter().enumerate() {
+                let v = d.vals[c * d.nrows + p0 + i];
+                for k in 0..4 {
+                    s[k] += v * b[k];
+                }
+            }
+            for (k, sk) in s.iter().take(q).enumerate() {
+                out[(j + k) * m + i] = *sk;
+            }
+        }
+        j += q;
+    }
+}
+
+/// Numeric factorization of the lower triangle `(col_ptr, row_idx, values)` (CSC, sorted or
+/// not, the pattern the symbolic analysis was computed for) into `l` (`sn.len_val()` entries).
+/// False when a pivot is not positive (A is not numerically positive definite).
+pub(super) fn factorize(
+    sn: &SymbolicSupernodalCholesky<usize>,
+    col_ptr: &[usize],
+    row_idx: &[usize],
+    values: &[f64],
+    l: &mut [f64],
+    w: &mut SupernodalWork,
+) -> bool {
+    // Compiled for the widest vector instructions the processor has (pulp's run-time
+    // dispatch, as faer's own kernels): the loops below are written to be auto-vectorized.
+    pulp::Arch::new().dispatch(Job {
+        sn,
+        col_ptr,
+        row_idx,
+        values,
+        l,
+        w,
+    })
+}
+
+/// [`factorize`]'s arguments, for pulp's dispatch (a closure is not inlined into the function
+/// compiled for the processor's instructions; `with_simd` is).
+struct Job<'a> {
+    sn: &'a SymbolicSupernodalCholesky<usize>,
+    col_ptr: &'a [usize],
+    row_idx: &'a [usize],
+    values: &'a [f64],
+    l: &'a mut [f64],
+    w: &'a mut SupernodalWork,
+}
+
+impl pulp::WithSimd for Job<'_> {
+    type Output = bool;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> bool {
+        factorize_on(
+            self.sn,
+            self.col_ptr,
+            self.row_idx,
+            self.values,
+            self.l,
+            self.w,
+        )
+    }
+}
+
+#[inline(always)]
+fn factorize_on(
+    sn: &SymbolicSupernodalCholesky<usize>,
+    col_ptr: &[usize],
+    row_idx: &[usize],
+    values: &[f64],
+    l: &mut [f64],
+    w: &mut SupernodalWork,
+) -> bool {
+    let n = sn.nrows();
+    let ns = sn.n_supernodes();
+    let begin = sn.supernode_begin();
+    let end = sn.supernode_end();
+    let val_ptr = sn.col_ptr_for_val();
+    assert_eq!(l.len(), sn.len_val());
+    w.local.clear();
+    w.local.resize(n, NONE);
+    w.head.clear();
+    w.head.resize(ns, NONE);
+    w.next.clear();
+    w.next.resize(ns, NONE);
+    w.pos.clear();
+    w.pos.resize(ns, 0);
+    if w.owner.len() != n {
+        w.owner.clear();
+        w.owner.resize(n, 0);
+        for s in 0..ns {
+            w.owner[begin[s]..end[s]].fill(s);
+        }
+    }
+    for s in 0..ns {
+        let (s0, s1) = (begin[s], end[s]);
+        let size = s1 - s0;
+        let pattern = sn.supernode(s).pattern();
+        let nrows = size + pattern.len();
+        for (k, r) in (s0..s1).enumerate() {
+            w.local[r] = k;
+        }
+        for (k, &r) in pattern.iter().enumerate() {
+            w.local[r] = size + k;
+        }
+        let (done, rest) = l.split_at_mut(val_ptr[s]);
+        let panel = &mut rest[..val_ptr[s + 1] - val_ptr[s]];
+        panel.fill(0.0);
+        // 1. The columns of A.
+        for (c, j) in (s0..s1).enumerate() {
+            let col = &mut panel[c * nrows..(c + 1) * nrows];
+            for k in col_ptr[j]..col_ptr[j + 1] {
+                let i = row_idx[k];
+                if i >= j {
+                    col[w.local[i]] += values[k];
+                }
+            }
+        }
+        // 2. The updates of the descendants waiting for this supernode.
+        let mut d = w.head[s];
+        while d != NONE {
+            let next_d = w.next[d];
+            let (d0, d1) = (begin[d], end[d]);
+            let dsize = d1 - d0;
+            let dpat = sn.supernode(d).pattern();
+            let dnrows = dsize + dpat.len();
+            let dvals = &done[val_ptr[d]..val_ptr[d + 1]];
+            // Rows of d's panel from p0 on: those in s (p0..p1), then the rest.
+            let p0 = w.pos[d];
+            let mut p1 = p0;
+            while p1 < dnrows && dpat[p1 - dsize] < s1 {
+                p1 += 1;
+            }
+            let m = dnrows - p0;
+            w.target.clear();
+            w.target
+                .extend(dpat[p0 - dsize..].iter().map(|&r| w.local[r]));
+            let nj = p1 - p0;
+            w.column.resize(m * nj, 0.0);
+            update_product(
+                Panel {
+                    vals: dvals,
+                    nrows: dnrows,
+                    ncols: dsize,
+                },
+                p0,
+                m,
+                nj,
+                &mut w.column,
+                &mut w.coefficients,
+            );
+            for j in 0..nj {
+                // Column j of the update, subtracted from the panel's column of row p0 + j.
+                let dest = &mut panel[w.target[j] * nrows..(w.target[j] + 1) * nrows];
+                for (&t, &r) in w.column[j * m + j..(j + 1) * m].iter().zip(&w.target[j..]) {
+                    dest[r] -= t;
+                }
+            }
+            // Link d to the supernode of its next row.
+            w.pos[d] = p1;
+            if p1 < dnrows {
+                let o = w.owner[dpat[p1 - dsize]];
+                w.next[d] = w.head[o];
+                w.head[o] = d;
+            }
+            d = next_d;
+        }
+        // 3. The panel: Cholesky of its top, the rows below divided through (right-looking).
+        for c in 0..size {
+            let (left, right) = panel.split_at_mut((c + 1) * nrows);
+            let col = &mut left[c * nrows..];
+            let p = col[c];
+            if !(p > 0.0 && p.is_finite()) {
+                return false;
+            }
+            let p = p.sqrt();
+            col[c] = p;
+            let inv = 1.0 / p;
+            for v in &mut col[c + 1..] {
+                *v *= inv;
+            }
+            for (k, other) in right.chunks_exact_mut(nrows).enumerate() {
+                let c2 = c + 1 + k;
+                let f = col[c2];
+                if f != 0.0 {
+                    for (o, &v) in other[c2..].iter_mut().zip(&col[c2..]) {
+                        *o -= v * f;
+                    }
+                }
+            }
+        }
+        for &r in pattern {
+            w.local[r] = NONE;
+        }
+        // Link s to the supernode of its first row below the panel.
+        w.pos[s] = size;
+        if let Some(&r) = pattern.first() {
+            let o = w.owner[r];
+            w.next[s] = w.head[o];
+            w.head[o] = s;
+        }
+    }
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solver::test_problems::ring;
+    use faer::dyn_stack::{MemBuffer, MemStack};
+    use faer::linalg::cholesky::llt::factor::LltRegularization;
+    use faer::sparse::linalg::cholesky::SymbolicCholeskyRaw;
+    use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+    use faer::{Par, Side, Spec};
+
+    /// The same factor as faer's numeric factorization, entry by entry, on supernodal factors
+    /// of two sizes and two dampings; and a refusal where the matrix is indefinite.
+    #[test]
+    fn the_factor_equals_faers() {
+        for (n, mu) in [(1100usize, 0.0), (1100, 1e-3), (2500, 1e-6)] {
+            let (mut g, values) = ring(n);
+            let (factors, p) = g.parts().unwrap();
+            p.linearize(factors, &values, &[]);
+            let mut delta = vec![0.0; p.n];
+            assert!(p.solve_damped(mu, true, &mut delta).unwrap());
+            let SymbolicCholeskyRaw::Supernodal(sn) = p.symbolic.raw() else {
+                panic!("n {n}: not supernodal");
+            };
+            let ours = p.l_values.clone();
+            let (h, upper_ptr, wide) = (&p.h, &p.col_ptr, &p.wide);
+            let weight = |k: usize, diagonal: bool| {
+                let d = h[upper_ptr[k + 1] - 1] + wide.diagonal(k);
+                if diagonal {
+                    d.clamp(1e-6, 1e32)
+                } else {
+                    1.0
+                }
+            };
+            let (col_ptr, row_idx, vals) = p.lower.gather(h, Some((mu, true)), weight);
+            let sym = SymbolicSparseColMatRef::new_checked(p.n, p.n, col_ptr, None, row_idx);
+            let mut theirs = vec![0.0; sn.len_val()];
+            let mut mem = MemBuffer::new(
+                p.symbolic
+                    .factorize_numeric_llt_scratch::<f64>(Par::Seq, Spec::default()),
+            );
+            p.symbolic
+                .factorize_numeric_llt::<f64>(
+                    &mut theirs,
+                    SparseColMatRef::new(sym, vals),
+                    Side::Lower,
+                    LltRegularization::default(),
+                    Par::Seq,
+                    MemStack::new(&mut mem),
+                    Spec::default(),
+                )
+                .unwrap();
+            // Entry by entry over each panel's lower part (above the diagonal of its top block
+            // faer leaves working values that no solve reads).
+            let scale = theirs.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let mut worst = 0.0f64;
+            for s in 0..sn.n_supernodes() {
+                let size = sn.supernode_end()[s] - sn.supernode_begin()[s];
+                let nrows = size + sn.supernode(s).pattern().len();
+                let base = sn.col_ptr_for_val()[s];
+                for c in 0..size {
+                    for r in c..nrows {
+                        let k = base + c * nrows + r;
+                        worst = worst.max((ours[k] - theirs[k]).abs());
+                    }
+                }
+            }
+            assert!(
+                worst <= 1e-12 * scale,
+                "n {n} mu {mu}: {worst:e} (scale {scale:e})"
+            );
+            // An indefinite matrix: the first diagonal entry made negative.
+            let mut bad = vals.to_vec();
+            bad[0] = -1.0;
+            let mut l = vec![0.0; sn.len_val()];
+            let mut w = SupernodalWork::default();
+            assert!(!factorize(sn, col_ptr, row_idx, &bad, &mut l, &mut w));
+        }
+    }
+}
