@@ -1,7 +1,8 @@
 //! Sparse nonlinear least squares: the normal-equation pattern with its ordering and cached
 //! symbolic Cholesky analysis (`pattern`), the Hessian and gradient accumulated into it
 //! (`assembly`), the numeric factorization with the damped and undamped solves
-//! (`linear_solve`), the low-rank term of wide factors solved by Woodbury (`woodbury`), the
+//! (`linear_solve`; the supernodal numeric Cholesky in `supernodal`, the factor's triangular
+//! solves in `factor`), the low-rank term of wide factors solved by Woodbury (`woodbury`), the
 //! system in natural variable order for cross-checks (`natural_system`), robust kernels per
 //! factor class (`robust`), the algorithms (`gauss_newton`, `levenberg_marquardt`, `dogleg`)
 //! over a shared problem with honest convergence tests (`problem`), the entry point
