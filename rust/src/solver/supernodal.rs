@@ -142,26 +142,20 @@ impl pulp::WithSimd for Job<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) -> bool {
-        factorize_on(
-            self.sn,
-            self.col_ptr,
-            self.row_idx,
-            self.values,
-            self.l,
-            self.w,
-        )
+        factorize_on(self)
     }
 }
 
 #[inline(always)]
-fn factorize_on(
-    sn: &SymbolicSupernodalCholesky<usize>,
-    col_ptr: &[usize],
-    row_idx: &[usize],
-    values: &[f64],
-    l: &mut [f64],
-    w: &mut SupernodalWork,
-) -> bool {
+fn factorize_on(job: Job<'_>) -> bool {
+    let Job {
+        sn,
+        col_ptr,
+        row_idx,
+        values,
+        l,
+        w,
+    } = job;
     let n = sn.nrows();
     let ns = sn.n_supernodes();
     let begin = sn.supernode_begin();
