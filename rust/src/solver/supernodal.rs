@@ -41,8 +41,9 @@ struct Panel<'a> {
 
 /// `out[j m + i] = sum_c L_d[p0 + i, c] L_d[p0 + j, c]` for the `m` rows of d's panel from
 /// `p0` on and its first `nj` of them (`out` is `m x nj`, column-major; entries with `i < j`
-/// are computed too, and not used). Four columns of the product at a time, four rows at a time
-/// held in registers across d's columns: each value of L_d loaded feeds four products.
+/// are computed too, and not used). Four columns of the product at a time, and for them eight
+/// rows (then four, then one) held in registers across d's columns: each value of L_d loaded
+/// feeds four products.
 #[inline(always)]
 fn update_product(
     d: Panel<'_>,
@@ -66,40 +67,49 @@ fn update_product(
             b
         }));
         let mut i = j;
-        while i + 4 <= m {
-            let mut acc = [[0.0f64; 4]; 4];
-            for (c, b) in bt.iter().enumerate() {
-                let base = c * d.nrows + p0 + i;
-                let v: [f64; 4] = [
-                    d.vals[base],
-                    d.vals[base + 1],
-                    d.vals[base + 2],
-                    d.vals[base + 3],
-                ];
-                for (a, &bk) in acc.iter_mut().zip(b) {
-                    for r in 0..4 {
-                        a[r] += v[r] * bk;
-                    }
-                }
-            }
-            for (k, a) in acc.iter().take(q).enumerate() {
-                out[(j + k) * m + i..(j + k) * m + i + 4].copy_from_slice(a);
-            }
+        while i + 8 <= m {
+            store_rows(&row_block::<8>(d, bt, p0 + i), out, m, i, j, q);
+            i += 8;
+        }
+        if i + 4 <= m {
+            store_rows(&row_block::<4>(d, bt, p0 + i), out, m, i, j, q);
             i += 4;
         }
         for i in i..m {
-            let mut s = [0.0f64; 4];
-            for (c, b) in bt.iter().enumerate() {
-                let v = d.vals[c * d.nrows + p0 + i];
-                for k in 0..4 {
-                    s[k] += v * b[k];
-                }
-            }
-            for (k, sk) in s.iter().take(q).enumerate() {
-                out[(j + k) * m + i] = *sk;
-            }
+            store_rows(&row_block::<1>(d, bt, p0 + i), out, m, i, j, q);
         }
         j += q;
+    }
+}
+
+/// Rows `row..row + R` of d's panel times the four columns' coefficients `bt`.
+#[inline(always)]
+fn row_block<const R: usize>(d: Panel<'_>, bt: &[[f64; 4]], row: usize) -> [[f64; R]; 4] {
+    let mut acc = [[0.0f64; R]; 4];
+    for (c, b) in bt.iter().enumerate() {
+        let v: &[f64; R] = d.vals[c * d.nrows + row..][..R].try_into().unwrap();
+        for (a, &bk) in acc.iter_mut().zip(b) {
+            for r in 0..R {
+                a[r] += v[r] * bk;
+            }
+        }
+    }
+    acc
+}
+
+/// The first `q` of a row block's four columns into `out` (`m` rows per column) at row `i`,
+/// column `j`.
+#[inline(always)]
+fn store_rows<const R: usize>(
+    acc: &[[f64; R]; 4],
+    out: &mut [f64],
+    m: usize,
+    i: usize,
+    j: usize,
+    q: usize,
+) {
+    for (k, a) in acc.iter().take(q).enumerate() {
+        out[(j + k) * m + i..][..R].copy_from_slice(a);
     }
 }
 
@@ -250,29 +260,55 @@ fn factorize_on(job: Job<'_>) -> bool {
             }
             d = next_d;
         }
-        // 3. The panel: Cholesky of its top, the rows below divided through (right-looking).
-        for c in 0..size {
-            let (left, right) = panel.split_at_mut((c + 1) * nrows);
-            let col = &mut left[c * nrows..];
-            let p = col[c];
-            if !(p > 0.0 && p.is_finite()) {
-                return false;
+        // 3. The panel: Cholesky of its top, the rows below divided through; four columns at
+        //    a time, each block first updated by the columns before it (the product of the
+        //    updates above), then factored right-looking.
+        let mut jb = 0;
+        while jb < size {
+            let q = (size - jb).min(4);
+            let (left, right) = panel.split_at_mut(jb * nrows);
+            if jb > 0 {
+                let m = nrows - jb;
+                w.column.resize(m * q, 0.0);
+                let done = Panel {
+                    vals: left,
+                    nrows,
+                    ncols: jb,
+                };
+                update_product(done, jb, m, q, &mut w.column, &mut w.coefficients);
+                for k in 0..q {
+                    let col = &mut right[k * nrows + jb..(k + 1) * nrows];
+                    for (o, &t) in col[k..].iter_mut().zip(&w.column[k * m + k..(k + 1) * m]) {
+                        *o -= t;
+                    }
+                }
             }
-            let p = p.sqrt();
-            col[c] = p;
-            let inv = 1.0 / p;
-            for v in &mut col[c + 1..] {
-                *v *= inv;
-            }
-            for (k, other) in right.chunks_exact_mut(nrows).enumerate() {
-                let c2 = c + 1 + k;
-                let f = col[c2];
-                if f != 0.0 {
+            for c in jb..jb + q {
+                let (left, right) = panel.split_at_mut((c + 1) * nrows);
+                let col = &mut left[c * nrows..];
+                let p = col[c];
+                if !(p > 0.0 && p.is_finite()) {
+                    return false;
+                }
+                let p = p.sqrt();
+                col[c] = p;
+                let inv = 1.0 / p;
+                for v in &mut col[c + 1..] {
+                    *v *= inv;
+                }
+                for (k, other) in right
+                    .chunks_exact_mut(nrows)
+                    .take(jb + q - c - 1)
+                    .enumerate()
+                {
+                    let c2 = c + 1 + k;
+                    let f = col[c2];
                     for (o, &v) in other[c2..].iter_mut().zip(&col[c2..]) {
                         *o -= v * f;
                     }
                 }
             }
+            jb += q;
         }
         for &r in pattern {
             w.local[r] = NONE;
