@@ -25,11 +25,19 @@ pub(super) struct SupernodalWork {
     pos: Vec<usize>,
     /// Per row: the supernode holding it.
     owner: Vec<usize>,
-    /// One column of an update, and its rows' positions in the target panel.
+    /// One update's product, and the four columns' coefficients being multiplied.
     column: Vec<f64>,
-    target: Vec<usize>,
     coefficients: Vec<[f64; 4]>,
+    /// Recorded by the first complete factorization and read by the later ones (the structure
+    /// does not change): each entry of A's position in its supernode's panel (NONE_32 for an
+    /// entry above the diagonal), and each update's rows' positions in its target panel, in
+    /// the order the updates are made.
+    entry_pos: Vec<u32>,
+    targets: Vec<u32>,
+    recorded: bool,
 }
+
+const NONE_32: u32 = u32::MAX;
 
 /// A supernode's panel of L: `nrows x ncols`, column-major.
 #[derive(Clone, Copy)]
@@ -172,66 +180,99 @@ fn factorize_on(job: Job<'_>) -> bool {
     let end = sn.supernode_end();
     let val_ptr = sn.col_ptr_for_val();
     assert_eq!(l.len(), sn.len_val());
-    w.local.clear();
-    w.local.resize(n, NONE);
-    w.head.clear();
-    w.head.resize(ns, NONE);
-    w.next.clear();
-    w.next.resize(ns, NONE);
-    w.pos.clear();
-    w.pos.resize(ns, 0);
-    if w.owner.len() != n {
-        w.owner.clear();
-        w.owner.resize(n, 0);
+    assert_eq!(col_ptr.len(), n + 1);
+    let SupernodalWork {
+        local,
+        head,
+        next,
+        pos,
+        owner,
+        column,
+        coefficients,
+        entry_pos,
+        targets,
+        recorded,
+    } = w;
+    let replay = *recorded;
+    if !replay {
+        local.clear();
+        local.resize(n, NONE);
+        entry_pos.clear();
+        targets.clear();
+        owner.clear();
+        owner.resize(n, 0);
         for s in 0..ns {
-            w.owner[begin[s]..end[s]].fill(s);
+            owner[begin[s]..end[s]].fill(s);
         }
     }
+    head.clear();
+    head.resize(ns, NONE);
+    next.clear();
+    next.resize(ns, NONE);
+    pos.clear();
+    pos.resize(ns, 0);
+    let mut cursor = 0;
     for s in 0..ns {
         let (s0, s1) = (begin[s], end[s]);
         let size = s1 - s0;
         let pattern = sn.supernode(s).pattern();
         let nrows = size + pattern.len();
-        for (k, r) in (s0..s1).enumerate() {
-            w.local[r] = k;
-        }
-        for (k, &r) in pattern.iter().enumerate() {
-            w.local[r] = size + k;
+        if !replay {
+            for (k, r) in (s0..s1).enumerate() {
+                local[r] = k;
+            }
+            for (k, &r) in pattern.iter().enumerate() {
+                local[r] = size + k;
+            }
         }
         let (done, rest) = l.split_at_mut(val_ptr[s]);
         let panel = &mut rest[..val_ptr[s + 1] - val_ptr[s]];
         panel.fill(0.0);
         // 1. The columns of A.
-        for (c, j) in (s0..s1).enumerate() {
-            let col = &mut panel[c * nrows..(c + 1) * nrows];
-            for k in col_ptr[j]..col_ptr[j + 1] {
-                let i = row_idx[k];
-                if i >= j {
-                    col[w.local[i]] += values[k];
+        if replay {
+            for k in col_ptr[s0]..col_ptr[s1] {
+                let p = entry_pos[k];
+                if p != NONE_32 {
+                    panel[p as usize] += values[k];
+                }
+            }
+        } else {
+            for (c, j) in (s0..s1).enumerate() {
+                for k in col_ptr[j]..col_ptr[j + 1] {
+                    let i = row_idx[k];
+                    let mut p = NONE_32;
+                    if i >= j {
+                        let at = c * nrows + local[i];
+                        panel[at] += values[k];
+                        p = at as u32;
+                    }
+                    entry_pos.push(p);
                 }
             }
         }
         // 2. The updates of the descendants waiting for this supernode.
-        let mut d = w.head[s];
+        let mut d = head[s];
         while d != NONE {
-            let next_d = w.next[d];
+            let next_d = next[d];
             let (d0, d1) = (begin[d], end[d]);
             let dsize = d1 - d0;
             let dpat = sn.supernode(d).pattern();
             let dnrows = dsize + dpat.len();
             let dvals = &done[val_ptr[d]..val_ptr[d + 1]];
             // Rows of d's panel from p0 on: those in s (p0..p1), then the rest.
-            let p0 = w.pos[d];
+            let p0 = pos[d];
             let mut p1 = p0;
             while p1 < dnrows && dpat[p1 - dsize] < s1 {
                 p1 += 1;
             }
             let m = dnrows - p0;
-            w.target.clear();
-            w.target
-                .extend(dpat[p0 - dsize..].iter().map(|&r| w.local[r]));
+            if !replay {
+                targets.extend(dpat[p0 - dsize..].iter().map(|&r| local[r] as u32));
+            }
+            let target = &targets[cursor..cursor + m];
+            cursor += m;
             let nj = p1 - p0;
-            w.column.resize(m * nj, 0.0);
+            column.resize(m * nj, 0.0);
             update_product(
                 Panel {
                     vals: dvals,
@@ -241,22 +282,23 @@ fn factorize_on(job: Job<'_>) -> bool {
                 p0,
                 m,
                 nj,
-                &mut w.column,
-                &mut w.coefficients,
+                column,
+                coefficients,
             );
             for j in 0..nj {
                 // Column j of the update, subtracted from the panel's column of row p0 + j.
-                let dest = &mut panel[w.target[j] * nrows..(w.target[j] + 1) * nrows];
-                for (&t, &r) in w.column[j * m + j..(j + 1) * m].iter().zip(&w.target[j..]) {
-                    dest[r] -= t;
+                let tj = target[j] as usize;
+                let dest = &mut panel[tj * nrows..(tj + 1) * nrows];
+                for (&t, &r) in column[j * m + j..(j + 1) * m].iter().zip(&target[j..]) {
+                    dest[r as usize] -= t;
                 }
             }
             // Link d to the supernode of its next row.
-            w.pos[d] = p1;
+            pos[d] = p1;
             if p1 < dnrows {
-                let o = w.owner[dpat[p1 - dsize]];
-                w.next[d] = w.head[o];
-                w.head[o] = d;
+                let o = owner[dpat[p1 - dsize]];
+                next[d] = head[o];
+                head[o] = d;
             }
             d = next_d;
         }
@@ -269,16 +311,16 @@ fn factorize_on(job: Job<'_>) -> bool {
             let (left, right) = panel.split_at_mut(jb * nrows);
             if jb > 0 {
                 let m = nrows - jb;
-                w.column.resize(m * q, 0.0);
+                column.resize(m * q, 0.0);
                 let done = Panel {
                     vals: left,
                     nrows,
                     ncols: jb,
                 };
-                update_product(done, jb, m, q, &mut w.column, &mut w.coefficients);
+                update_product(done, jb, m, q, column, coefficients);
                 for k in 0..q {
                     let col = &mut right[k * nrows + jb..(k + 1) * nrows];
-                    for (o, &t) in col[k..].iter_mut().zip(&w.column[k * m + k..(k + 1) * m]) {
+                    for (o, &t) in col[k..].iter_mut().zip(&column[k * m + k..(k + 1) * m]) {
                         *o -= t;
                     }
                 }
@@ -288,6 +330,11 @@ fn factorize_on(job: Job<'_>) -> bool {
                 let col = &mut left[c * nrows..];
                 let p = col[c];
                 if !(p > 0.0 && p.is_finite()) {
+                    if !replay {
+                        // Not recorded: the next factorization records from the start.
+                        entry_pos.clear();
+                        targets.clear();
+                    }
                     return false;
                 }
                 let p = p.sqrt();
@@ -310,17 +357,20 @@ fn factorize_on(job: Job<'_>) -> bool {
             }
             jb += q;
         }
-        for &r in pattern {
-            w.local[r] = NONE;
+        if !replay {
+            for &r in pattern {
+                local[r] = NONE;
+            }
         }
         // Link s to the supernode of its first row below the panel.
-        w.pos[s] = size;
+        pos[s] = size;
         if let Some(&r) = pattern.first() {
-            let o = w.owner[r];
-            w.next[s] = w.head[o];
-            w.head[o] = s;
+            let o = owner[r];
+            next[s] = head[o];
+            head[o] = s;
         }
     }
+    *recorded = true;
     true
 }
 
@@ -335,7 +385,9 @@ mod tests {
     use faer::{Par, Side, Spec};
 
     /// The same factor as faer's numeric factorization, entry by entry, on supernodal factors
-    /// of two sizes and two dampings; and a refusal where the matrix is indefinite.
+    /// of two sizes and three dampings, replaying what an earlier factorization of the pattern
+    /// (at another damping) recorded; a refusal where the matrix is indefinite, after which a
+    /// fresh work records anew and factors right.
     #[test]
     fn the_factor_equals_faers() {
         for (n, mu) in [(1100usize, 0.0), (1100, 1e-3), (2500, 1e-6)] {
@@ -343,6 +395,8 @@ mod tests {
             let (factors, p) = g.parts().unwrap();
             p.linearize(factors, &values, &[]);
             let mut delta = vec![0.0; p.n];
+            assert!(p.solve_damped(1.0, true, &mut delta).unwrap());
+            assert!(p.supernodal_work.recorded);
             assert!(p.solve_damped(mu, true, &mut delta).unwrap());
             let SymbolicCholeskyRaw::Supernodal(sn) = p.symbolic.raw() else {
                 panic!("n {n}: not supernodal");
@@ -400,6 +454,12 @@ mod tests {
             let mut l = vec![0.0; sn.len_val()];
             let mut w = SupernodalWork::default();
             assert!(!factorize(sn, col_ptr, row_idx, &bad, &mut l, &mut w));
+            assert!(!w.recorded);
+            assert!(factorize(sn, col_ptr, row_idx, vals, &mut l, &mut w));
+            assert!(w.recorded);
+            assert!(!factorize(sn, col_ptr, row_idx, &bad, &mut l, &mut w));
+            assert!(factorize(sn, col_ptr, row_idx, vals, &mut l, &mut w));
+            assert_eq!(l, ours, "n {n} mu {mu}: refactored after a refusal");
         }
     }
 }
