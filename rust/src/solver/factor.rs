@@ -154,37 +154,12 @@ impl<'a> Cholesky<'a> {
         match self.symbolic.raw() {
             SymbolicCholeskyRaw::Simplicial(_) => self.forward(x),
             SymbolicCholeskyRaw::Supernodal(sn) => {
-                // x_s <- L_ss^-1 x_s, then x[pattern] -= L_below x_s, supernodes first to last:
-                // the product is summed column by column over contiguous values and scattered
-                // once (no tests for zero rows: a dense right-hand side has none to skip).
                 let mut below = Vec::new();
                 for s in 0..sn.n_supernodes() {
                     let Some((s0, size, pattern, vals)) = self.supernode(sn, s) else {
                         continue;
                     };
-                    let nrows = size + pattern.len();
-                    for c in 0..size {
-                        let diag = &vals[c * nrows..c * nrows + size];
-                        let v = x[s0 + c] / diag[c];
-                        x[s0 + c] = v;
-                        for (xi, &l) in x[s0 + c + 1..s0 + size].iter_mut().zip(&diag[c + 1..]) {
-                            *xi -= l * v;
-                        }
-                    }
-                    below.clear();
-                    below.resize(pattern.len(), 0.0);
-                    for c in 0..size {
-                        let v = x[s0 + c];
-                        for (b, &l) in below
-                            .iter_mut()
-                            .zip(&vals[c * nrows + size..(c + 1) * nrows])
-                        {
-                            *b += l * v;
-                        }
-                    }
-                    for (&row, &b) in pattern.iter().zip(&below) {
-                        x[row] -= b;
-                    }
+                    forward_panel(vals, s0, size, pattern, x, &mut below);
                 }
             }
         }
@@ -230,6 +205,46 @@ impl<'a> Cholesky<'a> {
                 }
             }
         }
+    }
+}
+
+/// One supernode's share of the forward solve `x <- L^-1 x`: `x_s <- L_ss^-1 x_s`, then
+/// `x[pattern] -= L_below x_s`, the product summed column by column over contiguous values and
+/// scattered once (no tests for zero rows: a dense right-hand side has none to skip). `vals` is
+/// the supernode's panel (`size + pattern.len()` rows, column-major) for columns `s0..s0 +
+/// size`; `below` is workspace. Called supernode after supernode, first to last, by
+/// [`Cholesky::solve`] and by the factorization, which solves forward as it goes.
+#[inline(always)]
+pub(super) fn forward_panel(
+    vals: &[f64],
+    s0: usize,
+    size: usize,
+    pattern: &[usize],
+    x: &mut [f64],
+    below: &mut Vec<f64>,
+) {
+    let nrows = size + pattern.len();
+    for c in 0..size {
+        let diag = &vals[c * nrows..c * nrows + size];
+        let v = x[s0 + c] / diag[c];
+        x[s0 + c] = v;
+        for (xi, &l) in x[s0 + c + 1..s0 + size].iter_mut().zip(&diag[c + 1..]) {
+            *xi -= l * v;
+        }
+    }
+    below.clear();
+    below.resize(pattern.len(), 0.0);
+    for c in 0..size {
+        let v = x[s0 + c];
+        for (b, &l) in below
+            .iter_mut()
+            .zip(&vals[c * nrows + size..(c + 1) * nrows])
+        {
+            *b += l * v;
+        }
+    }
+    for (&row, &b) in pattern.iter().zip(below.iter()) {
+        x[row] -= b;
     }
 }
 

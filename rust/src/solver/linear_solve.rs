@@ -163,10 +163,20 @@ impl SparsityPattern {
             *x = -g;
         }
         let n = self.n;
-        if !self.factorize(Some((mu, diagonal))) {
+        // The supernodal factorization solves forward as it goes where the plain loops then
+        // finish the solve (not with wide factors: Woodbury needs -g as it is).
+        let forward_in_factorization = self.wide.rank() == 0 && self.plain_solves;
+        let rhs = forward_in_factorization.then_some(&mut *delta);
+        let Some(forwarded) = self.factorize(Some((mu, diagonal)), rhs) else {
             return Ok(false);
-        }
-        if self.wide.rank() == 0 {
+        };
+        if forwarded {
+            Cholesky {
+                symbolic: &self.symbolic,
+                l_values: &self.l_values,
+            }
+            .backward(delta);
+        } else if self.wide.rank() == 0 {
             solve_in_place(
                 &self.symbolic,
                 &self.l_values,
@@ -295,8 +305,10 @@ impl SparsityPattern {
 
     /// Numeric Cholesky of the sparse part `H_s + mu D` (`damping = Some((mu, diagonal))`, with
     /// `damped` filled for the upper triangle) or of `H_s` (`None`) into `l_values`, on the
-    /// cached symbolic analysis; false when it is not positive definite.
-    fn factorize(&mut self, damping: Option<(f64, bool)>) -> bool {
+    /// cached symbolic analysis; None when it is not positive definite. With `rhs`, the
+    /// supernodal kernel also applies `L^-1` to it as it goes: `Some(true)` says it did (the
+    /// simplicial kernel leaves `rhs` as it is and says `Some(false)`).
+    fn factorize(&mut self, damping: Option<(f64, bool)>, rhs: Option<&mut [f64]>) -> Option<bool> {
         let n = self.n;
         self.ensure_lower();
         let (col_ptr, row_idx, values, side) = if !self.uses_lower() {
@@ -315,6 +327,7 @@ impl SparsityPattern {
             (col_ptr, row_idx, values, Side::Lower)
         };
         if let (Side::Lower, SymbolicCholeskyRaw::Supernodal(sn)) = (side, self.symbolic.raw()) {
+            let forwarded = rhs.is_some();
             return supernodal::factorize(
                 sn,
                 col_ptr,
@@ -322,7 +335,9 @@ impl SparsityPattern {
                 values,
                 &mut self.l_values,
                 &mut self.supernodal_work,
-            );
+                rhs,
+            )
+            .then_some(forwarded);
         }
         let sym = SymbolicSparseColMatRef::new_checked(n, n, col_ptr, None, row_idx);
         self.symbolic
@@ -336,6 +351,7 @@ impl SparsityPattern {
                 Spec::default(),
             )
             .is_ok()
+            .then_some(false)
     }
 
     /// `d^T D d` for the damping matrix D of [`Self::solve_damped`].
@@ -360,7 +376,7 @@ impl SparsityPattern {
                 "the information matrix is singular at this solution; marginals are undefined (is every pose constrained?)".into(),
             )
         };
-        if !self.factorize(None) {
+        if self.factorize(None, None).is_none() {
             return Err(singular());
         }
         if self.wide.rank() == 0 {
