@@ -59,7 +59,11 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
                     }
                 };
                 undamped = damping <= UNDAMPED_SHARE * gd;
-                let (c, gain) = p.try_step(values, &delta, &mut trial, cost, predicted, ahead);
+                // A chord step is taken near the minimum, where it is usually the last: its
+                // trial is evaluated without linearizing (linearized only if the solve goes on).
+                let look_ahead = ahead && !is_chord;
+                let (c, gain) =
+                    p.try_step(values, &delta, &mut trial, cost, predicted, look_ahead);
                 new_cost = c;
                 if let Some(rho) = gain {
                     lambda *= f64::max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0).powi(3));
@@ -77,7 +81,7 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
                             return Ok(done);
                         }
                     }
-                    if ahead {
+                    if look_ahead {
                         p.pattern.accept_ahead();
                     } else {
                         cost = p.linearize(values);
