@@ -62,8 +62,7 @@ pub(super) fn run(p: &mut Problem<'_>, values: &mut Values, mut cost: f64) -> Re
                 // A chord step is taken near the minimum, where it is usually the last: its
                 // trial is evaluated without linearizing (linearized only if the solve goes on).
                 let look_ahead = ahead && !is_chord;
-                let (c, gain) =
-                    p.try_step(values, &delta, &mut trial, cost, predicted, look_ahead);
+                let (c, gain) = p.try_step(values, &delta, &mut trial, cost, predicted, look_ahead);
                 new_cost = c;
                 if let Some(rho) = gain {
                     lambda *= f64::max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0).powi(3));

@@ -55,7 +55,7 @@ struct Panel<'a> {
 /// rows (then four, then one) held in registers across d's columns: each value of L_d loaded
 /// feeds four products.
 #[inline(always)]
-fn update_product(
+fn update_product<const FMA: bool>(
     d: Panel<'_>,
     p0: usize,
     m: usize,
@@ -78,15 +78,15 @@ fn update_product(
         }));
         let mut i = j;
         while i + 8 <= m {
-            store_rows(&row_block::<8>(d, bt, p0 + i), out, m, i, j, q);
+            store_rows(&row_block::<8, FMA>(d, bt, p0 + i), out, m, i, j, q);
             i += 8;
         }
         if i + 4 <= m {
-            store_rows(&row_block::<4>(d, bt, p0 + i), out, m, i, j, q);
+            store_rows(&row_block::<4, FMA>(d, bt, p0 + i), out, m, i, j, q);
             i += 4;
         }
         for i in i..m {
-            store_rows(&row_block::<1>(d, bt, p0 + i), out, m, i, j, q);
+            store_rows(&row_block::<1, FMA>(d, bt, p0 + i), out, m, i, j, q);
         }
         j += q;
     }
@@ -94,13 +94,17 @@ fn update_product(
 
 /// Rows `row..row + R` of d's panel times the four columns' coefficients `bt`.
 #[inline(always)]
-fn row_block<const R: usize>(d: Panel<'_>, bt: &[[f64; 4]], row: usize) -> [[f64; R]; 4] {
+fn row_block<const R: usize, const FMA: bool>(
+    d: Panel<'_>,
+    bt: &[[f64; 4]],
+    row: usize,
+) -> [[f64; R]; 4] {
     let mut acc = [[0.0f64; R]; 4];
     for (c, b) in bt.iter().enumerate() {
         let v: &[f64; R] = d.vals[c * d.nrows + row..][..R].try_into().unwrap();
         for (a, &bk) in acc.iter_mut().zip(b) {
             for r in 0..R {
-                a[r] += v[r] * bk;
+                a[r] = madd::<FMA>(v[r], bk, a[r]);
             }
         }
     }
@@ -167,12 +171,43 @@ impl pulp::WithSimd for Job<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) -> bool {
-        factorize_on(self)
+        if fused_multiply_add() {
+            factorize_on::<true>(self)
+        } else {
+            factorize_on::<false>(self)
+        }
+    }
+}
+
+/// Whether the processor has a fused multiply-add instruction (`f64::mul_add` is a library
+/// call, and a slow one, where it has not).
+fn fused_multiply_add() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(target_arch = "aarch64")]
+    {
+        true
+    }
+    #[cfg(not(any(target_arch = "x86_64", target_arch = "aarch64")))]
+    {
+        false
+    }
+}
+
+/// `a b + c`, fused (one rounding, one instruction) where `FMA`.
+#[inline(always)]
+fn madd<const FMA: bool>(a: f64, b: f64, c: f64) -> f64 {
+    if FMA {
+        a.mul_add(b, c)
+    } else {
+        a * b + c
     }
 }
 
 #[inline(always)]
-fn factorize_on(job: Job<'_>) -> bool {
+fn factorize_on<const FMA: bool>(job: Job<'_>) -> bool {
     let Job {
         sn,
         col_ptr,
@@ -282,7 +317,7 @@ fn factorize_on(job: Job<'_>) -> bool {
             cursor += m;
             let nj = p1 - p0;
             column.resize(m * nj, 0.0);
-            update_product(
+            update_product::<FMA>(
                 Panel {
                     vals: dvals,
                     nrows: dnrows,
@@ -326,7 +361,7 @@ fn factorize_on(job: Job<'_>) -> bool {
                     nrows,
                     ncols: jb,
                 };
-                update_product(done, jb, m, q, column, coefficients);
+                update_product::<FMA>(done, jb, m, q, column, coefficients);
                 for k in 0..q {
                     let col = &mut right[k * nrows + jb..(k + 1) * nrows];
                     for (o, &t) in col[k..].iter_mut().zip(&column[k * m + k..(k + 1) * m]) {
