@@ -102,6 +102,7 @@ impl<'a> Cholesky<'a> {
                     }
                     None => None,
                 };
+                let mut below = Vec::new();
                 for s in 0..ns {
                     let Some((s0, size, pattern, vals)) = self.supernode(sn, s) else {
                         continue;
@@ -123,25 +124,8 @@ impl<'a> Cholesky<'a> {
                         }
                     }
                     visit(s0, s1);
-                    let nrows = size + pattern.len();
-                    for j in 0..k {
-                        let col = &mut x[j * n..(j + 1) * n];
-                        // Column c of the supernode: its diagonal block (rows s0..s1), then the
-                        // rows of `pattern`.
-                        for c in 0..size {
-                            let lc = &vals[c * nrows..(c + 1) * nrows];
-                            let v = col[s0 + c] / lc[c];
-                            col[s0 + c] = v;
-                            if v == 0.0 {
-                                continue;
-                            }
-                            for i in c + 1..size {
-                                col[s0 + i] -= lc[i] * v;
-                            }
-                            for (&row, &l) in pattern.iter().zip(&lc[size..]) {
-                                col[row] -= l * v;
-                            }
-                        }
+                    for col in x.chunks_mut(n).take(k) {
+                        forward_panel(vals, s0, size, pattern, col, &mut below);
                     }
                 }
             }
