@@ -111,6 +111,13 @@ an undo with nothing to undo and a redo with nothing to redo are rejected. Witho
 the run stops at the first one with exit code 2 and writes nothing; with --keep-going they are
 skipped and listed, and the rest still apply (exit code 0 once OUT is written).
 
+--align, once every line is done, aligns the map with its scans (docs/ALGORITHM.md §I.11): the
+scan-matching front end runs again from the corrected poses, its matched steps and loop closures
+replace the map's factors, and every correction is solved again over them. The person's
+statements bring copies of a wall together; the scans then close the last centimetres. Where the
+aligned map contradicts the robot's odometry at more than 5% of the steps (scan matching gone
+wrong: few features, a fault not yet corrected) it is refused: exit code 2, nothing written.
+
 OUT's extension picks its format (.covars, .clf CARMEN log, .g2o, .txt TUM, .pgm + .yaml
 occupancy grid, .png or .svg figure). --session also keeps the whole run as a session file (a new
 file; an existing one is never overwritten) that `hitl-slam serve` or `hitl-slam export` can
@@ -460,6 +467,46 @@ def _one_line(text: str) -> str:
     return " ".join(text.split())
 
 
+def _align_session(args: argparse.Namespace, session: Session) -> None:
+    """``--align``: the session's map aligned with its scans, with a progress bar over the
+    scans; a refusal stops the command (nothing written) with its figures."""
+    from hitl_slam.alignment import AlignmentRefused
+    from hitl_slam.session import moved_poses
+
+    bar = None
+    if not args.quiet and sys.stderr.isatty():
+        from tqdm import tqdm
+
+        bar = tqdm(total=session.input_map.num_poses, desc="aligning", unit="scan", file=sys.stderr)
+
+    def progress(done: int, _total: int) -> None:
+        if bar is not None:
+            bar.n = done
+            bar.refresh()
+
+    before = session.poses
+    try:
+        step = session.align(progress=progress)
+    except AlignmentRefused as exc:
+        raise InputError(
+            f"--align: {exc}; nothing was written (drop --align to write the corrected map)"
+        ) from None
+    finally:
+        if bar is not None:
+            bar.close()
+    if not args.quiet:
+        moved, _ = moved_poses(before, session.poses)
+        print(
+            f"{'':>5}  {'align':<14} {moved:>7} {step.stats.initial_chi2:>16.6f} "
+            f"{step.stats.final_chi2:>16.6f} {1e3 * step.stats.time_s:>9.2f}"
+        )
+        print(
+            f"       aligned with the scans: {step.loop_closures} loop closures kept "
+            f"({step.loop_closures_rejected} rejected); the aligned map contradicts "
+            f"{step.contradicted} of {step.steps} odometry steps beyond their 99.9% bound"
+        )
+
+
 def _cmd_correct(args: argparse.Namespace) -> int:
     from hitl_slam.corrections_file import Apply, read_corrections
     from hitl_slam.errors import CorrectionRejected
@@ -526,6 +573,8 @@ def _cmd_correct(args: argparse.Namespace) -> int:
             moved, _ = moved_poses(before, session.poses)
             if not args.quiet:
                 print(f"{step.line:>5}  {name:<14} {moved:>7} {chi2} {1e3 * result.time_s:>9.2f}")
+        if args.align:
+            _align_session(args, session)
         _write_correct_outputs(args, session, out, session_path)
     if rejected and not args.quiet:
         print(f"rejected ({len(rejected)}):")
@@ -533,6 +582,8 @@ def _cmd_correct(args: argparse.Namespace) -> int:
             print(f"  {args.corrections}:{line}: {reason}")
     applied = counts["applied"]
     done = f"{applied} correction{'' if applied == 1 else 's'} applied"
+    if args.align:
+        done += ", then aligned with the scans"
     if counts["undo"] or counts["redo"]:
         done += f", {counts['undo']} undone, {counts['redo']} redone"
     if rejected:
@@ -950,8 +1001,10 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     out = Path(args.output)
     if args.full:
         return _evaluate_full(args, out)
-    if args.maps or args.faults:
-        raise InputError("--maps and --faults select parts of the full evaluation; add --full")
+    if args.maps or args.faults or args.no_align:
+        raise InputError(
+            "--maps, --faults and --no-align are options of the full evaluation; add --full"
+        )
     require("plot", "hitl-slam evaluate")  # the report's figures
     log = (lambda _m: None) if args.quiet else print
     results, report = run_evaluation(out, seed=args.seed, quick=args.quick, log=log)
@@ -988,15 +1041,25 @@ def _evaluate_full(args: argparse.Namespace, out: Path) -> int:
                 f"{r.accepted}/{len(r.drawings)} accepted, "
                 f"{sum(d.worse for d in r.drawings)} worse, "
                 f"ATE {r.ate[0]:.3f} -> {r.ate[1]:.3f} m, "
-                f"angle {r.angle[0]:.2f} -> {r.angle[1]:.2f} deg, {r.time_s:.0f} s",
+                f"angle {r.angle[0]:.2f} -> {r.angle[1]:.2f} deg"
+                + (f", alignment {r.alignment.split(':')[0]}" if r.alignment else "")
+                + f", {r.time_s:.0f} s",
                 flush=True,
             )
 
     start = time.perf_counter()
-    runs = run_full(seed=args.seed, maps=maps, faults=faults, jobs=args.jobs, log=log)
+    runs = run_full(
+        seed=args.seed,
+        maps=maps,
+        faults=faults,
+        jobs=args.jobs,
+        log=log,
+        align=not args.no_align,
+    )
     out.mkdir(parents=True, exist_ok=True)
     flags = " --full" + (f" --maps {args.maps}" if args.maps else "")
     flags += f" --faults {args.faults}" if args.faults else ""
+    flags += " --no-align" if args.no_align else ""
     text = full_report(runs, provenance(args.seed, flags, time.perf_counter() - start))
     report = out / "full.md"
     with atomic_outputs():  # the report and its data together
@@ -1118,6 +1181,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--keep-going",
         action="store_true",
         help="skip (and list) rejected corrections instead of stopping at the first",
+    )
+    correct.add_argument(
+        "--align",
+        action="store_true",
+        help="after the corrections, align the map with its scans: match them again from the "
+        "corrected poses and solve every correction over that graph (refused, and nothing "
+        "written, where it contradicts the odometry)",
     )
     _add_force(correct)
     correct.add_argument("-q", "--quiet", action="store_true", help="only the summary line")
@@ -1359,6 +1429,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--faults",
         metavar="A,B",
         help="with --full: only these fault models (jump,drift,bend,laps)",
+    )
+    evaluate.add_argument(
+        "--no-align",
+        action="store_true",
+        help="with --full: the person does not align the map with its scans after drawing",
     )
     evaluate.add_argument(
         "-j", "--jobs", type=int, default=1, help="with --full: runs at once (default 1)"

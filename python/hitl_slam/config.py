@@ -105,6 +105,9 @@ class Config:
     # (docs/ALGORITHM.md §I.4; off: on the standard evaluation it took Freiburg 079 from 1.2 to
     # 5.1 deg)
     pass_by_pass: bool = False
+    # alignment with the scans (docs/ALGORITHM.md §I.11): refused when the aligned poses
+    # contradict more than this share of the odometry steps beyond their 99.9% bound
+    align_max_contradicted: float = 0.05
     # §6.1 metric / occupancy export
     grid_resolution: float = 0.05  # [m]
     # §6.2 inconsistency metric: its robustness rules (without them a perfect map scores 100s m^2)
@@ -140,6 +143,12 @@ class Config:
             raise InputError(
                 "config consistency_guard is a probability: 0 (off) or between 0 and 1, "
                 f"e.g. 0.999; got {self.consistency_guard!r}"
+            )
+
+        if not self.align_max_contradicted <= 1:
+            raise InputError(
+                "config align_max_contradicted is a share of the odometry steps, between 0 and "
+                f"1, e.g. 0.05; got {self.align_max_contradicted!r}"
             )
 
     def replace(self, **changes: Any) -> Config:

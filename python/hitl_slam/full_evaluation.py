@@ -30,7 +30,9 @@ from hitl_slam.evaluation import LASER, _nanmean
 
 if TYPE_CHECKING:
     from hitl_slam.corrections import Interpretation
+    from hitl_slam.session import Session
     from hitl_slam.sim.human import Inconsistency, Visit
+    from hitl_slam.sim.scenario import Scenario
 
 __all__ = [
     "FULL_MAPS",
@@ -108,6 +110,11 @@ class Run:
     time_s: float
     faults: str = ""
     extra: dict[str, float] = field(default_factory=dict)
+    # the person's last step: the map aligned with its scans (docs/ALGORITHM.md §I.11): ""
+    # (not tried), "applied", or "refused: <why>"; and ATE, angle, spacing and inconsistency
+    # before it (after the last drawing)
+    alignment: str = ""
+    before_alignment: tuple[float, float, float, float] | None = None
 
     @property
     def accepted(self) -> int:
@@ -185,9 +192,15 @@ def evaluate_run(
     seed: int = 0,
     max_corrections: int = 40,
     config: Config = DEFAULT,
+    on_end: Callable[[Scenario, Session], object] | None = None,
+    align: bool = True,
 ) -> Run:
     """Damages map ``label`` by fault model ``fault`` and lets a careful person with endpoint
-    noise ``noise_m`` repair it, scoring every drawing."""
+    noise ``noise_m`` repair it, scoring every drawing. With ``align``, once they have drawn
+    what they could (or ``max_corrections``), they align the map with its scans
+    (:meth:`Session.align`), which is scored too. ``on_end(scenario, session)`` is called
+    with the damaged scenario and the session at its last state, before the session closes
+    (benches/scan_alignment.py starts from there)."""
     from hitl_slam.metrics import ate, inconsistency
     from hitl_slam.session import Session
     from hitl_slam.sim.careful import CarefulPerson
@@ -219,6 +232,7 @@ def evaluate_run(
     person = CarefulPerson(scenario, person_rng, endpoint_noise=noise_m, config=config)
     session = Session.new(m, config=config)
     drawings: list[Drawing] = []
+    alignment, before_alignment = "", None
     poses = np.array(session.poses)
     ate0, ang0, inc0 = score(poses)
     first = (ate0, ang0, inc0)
@@ -263,6 +277,23 @@ def evaluate_run(
                 )
             )
             ate0, ang0, inc0 = ate1, ang1, inc1
+        if align:
+            before_alignment = (
+                ate0,
+                ang0,
+                _nanmean(scenario.errors(poses).translational),
+                inc0.total_m2,  # type: ignore[attr-defined]
+            )
+            try:
+                session.align()
+            except InputError as err:
+                alignment = f"refused: {err}"
+            else:
+                alignment = "applied"
+                poses = np.array(session.poses)
+                ate0, ang0, inc0 = score(poses, like=first[2])
+        if on_end is not None:
+            on_end(scenario, session)
     finally:
         session.close()
     inc_truth = inconsistency(m, truth, config, like=first[2])  # type: ignore[arg-type]
@@ -281,12 +312,14 @@ def evaluate_run(
         finished=finished,
         time_s=time.perf_counter() - start,
         faults=_describe(faults),
+        alignment=alignment,
+        before_alignment=before_alignment,
     )
 
 
-def _run_one(args: tuple[str, str, float, int]) -> Run:
-    label, fault, noise, seed = args
-    return evaluate_run(label, fault, noise, seed=seed)
+def _run_one(args: tuple[str, str, float, int, bool]) -> Run:
+    label, fault, noise, seed, align = args
+    return evaluate_run(label, fault, noise, seed=seed, align=align)
 
 
 def run_full(
@@ -297,6 +330,7 @@ def run_full(
     noises: Sequence[float] = NOISES_M,
     jobs: int = 1,
     log: Callable[[Run], None] = lambda _r: None,
+    align: bool = True,
 ) -> list[Run]:
     """Every (map, fault model, noise) run, in that order (``jobs`` processes at once)."""
     from hitl_slam.sim.fault_models import FAULT_MODELS
@@ -305,7 +339,7 @@ def run_full(
         if label not in FULL_MAPS:
             raise InputError(f"unknown map {label!r}; the maps are: {', '.join(FULL_MAPS)}")
     work = [
-        (label, fault, noise, seed)
+        (label, fault, noise, seed, align)
         for label in maps
         for fault in (faults or list(FAULT_MODELS))
         for noise in noises
@@ -353,8 +387,47 @@ def _fmt_run(r: Run) -> str:
         f"| {r.ate[0]:.3f} | {r.ate[1]:.3f} | {r.angle[0]:.2f} | {r.angle[1]:.2f} "
         f"| {r.spacing[0]:.3f} | {r.spacing[1]:.3f} "
         f"| {r.inconsistency[0]:.1f} | {r.inconsistency[1]:.1f} | {r.inconsistency_truth:.1f} "
-        f"| {100 * r.achieved_fraction:.0f}% | {r.time_s:.0f} |"
+        f"| {100 * r.achieved_fraction:.0f}% | {r.alignment.split(':')[0] or '-'} "
+        f"| {r.time_s:.0f} |"
     )
+
+
+def _alignment_worse(r: Run) -> bool:
+    """The alignment was applied and raised ATE or the mean wall-angle error by over 5%."""
+    if r.alignment != "applied" or r.before_alignment is None:
+        return False
+    ate0, ang0 = r.before_alignment[:2]
+    return r.ate[1] > WORSE * ate0 or r.angle[1] > WORSE * ang0
+
+
+def _alignment_lines(runs: Sequence[Run]) -> list[str]:
+    tried = [r for r in runs if r.alignment]
+    if not tried:
+        return []
+    applied = [r for r in tried if r.alignment == "applied"]
+    worse = [r for r in applied if _alignment_worse(r)]
+    lines = [
+        "## Alignment with the scans",
+        "",
+        f"Applied in {len(applied)} of {len(tried)} runs (refused in the others: the aligned map "
+        "contradicted the odometry at too many steps); it raised ATE or the mean wall-angle "
+        f"error by more than 5% in {len(worse)} of the {len(applied)}. Before: after the last "
+        "drawing; after: after the alignment (the runs table's 'out').",
+        "",
+        "| map | fault | noise (cm) | alignment | ATE (m) | angle (deg) | spacing (m) "
+        "| inconsistency (m^2) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in tried:
+        assert r.before_alignment is not None
+        a, g, sp, inc = r.before_alignment
+        what = r.alignment.split(":")[0] + (", **worse**" if _alignment_worse(r) else "")
+        lines.append(
+            f"| {r.map} | {r.fault} | {100 * r.noise_m:.0f} | {what} "
+            f"| {a:.3f} -> {r.ate[1]:.3f} | {g:.2f} -> {r.angle[1]:.2f} "
+            f"| {sp:.3f} -> {r.spacing[1]:.3f} | {inc:.1f} -> {r.inconsistency[1]:.1f} |"
+        )
+    return [*lines, ""]
 
 
 def runs_json(runs: Sequence[Run]) -> str:
@@ -388,7 +461,9 @@ def full_report(runs: Sequence[Run], provenance: str) -> str:
         "0.1 deg/m odometry noise besides, then repaired by a careful person",
         "(`hitl_slam.sim.careful.CarefulPerson`) who draws only true statements on the copies",
         "they can see, in random direction, with 5 cm or 15 cm endpoint noise, one correction at",
-        "a time on the current map, each committed as drawn.",
+        "a time on the current map, each committed as drawn. Once they have drawn what they",
+        "could (or 40 corrections), they align the map with its scans (`Session.align`,",
+        "docs/ALGORITHM.md §I.11) unless the run says otherwise; 'out' is after that step.",
         "Places, signs and sizes of the faults and every drawing come from the seed.",
         "",
         "## Targets",
@@ -416,10 +491,11 @@ def full_report(runs: Sequence[Run], provenance: str) -> str:
         "",
         "| map | fault | noise (cm) | poses | drawings | accepted | worse | worse beyond noise "
         "| ATE in (m) | ATE out | angle in (deg) | angle out | spacing in (m) | spacing out "
-        "| inconsistency in (m^2) | out | truth | of achievable | time (s) |",
-        "|" + "---|" * 19,
+        "| inconsistency in (m^2) | out | truth | of achievable | alignment | time (s) |",
+        "|" + "---|" * 20,
         *(_fmt_run(r) for r in runs),
         "",
+        *_alignment_lines(runs),
         "## Refusals by reason",
         "",
     ]
@@ -455,6 +531,8 @@ def full_report(runs: Sequence[Run], provenance: str) -> str:
                 f"| {d.angle[0]:.2f} -> {d.angle[1]:.2f} "
                 f"| {d.inconsistency[0]:.1f} -> {d.inconsistency[1]:.1f} | {1000 * d.time_s:.0f} |"
             )
+        if r.alignment:
+            lines += ["", f"Alignment with the scans: {r.alignment.replace('|', '/')}."]
         lines.append("")
     lines += [
         "Real logs: the Intel Research Lab, Freiburg building 079, Seattle, Orebro, Belgioioso",

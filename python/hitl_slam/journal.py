@@ -34,6 +34,14 @@ correction's: every correction in effect, re-solved), and its ``poses`` are the 
 checkpoint. It is computed first and journaled as one event, then the state changes; ``undo`` and
 ``redo`` name it by its ``seq`` as ``request``, as they name a correction by its request's.
 
+An ``align`` event (an addition within schema 2; docs/ALGORITHM.md §I.11) records the map aligned
+with its scans: its payload holds ``graph`` (``edges`` ``[[i, j], ...]``, ``measurements``
+``[[x, y, theta], ...]`` and ``information`` ``[[9 numbers, row-major], ...]``: the factors that
+replace the map's from then on), ``stats`` and ``lines`` (as a loop closure step's),
+``loop_closures`` and ``loop_closures_rejected`` (the front end's counts), ``steps`` and
+``contradicted`` (the guard's figures); its ``poses`` are the aligned checkpoint. Journaled as one
+event once computed, undone and redone like a loop closure step.
+
 Integrity (schema 2): every stored row carries ``sha256 TEXT``, the SHA-256 of its values with
 their SQLite types (:func:`row_digest`): ``map``, ``config``, each ``map_arrays`` blob and each
 event, so a byte changed on disk (which SQLite's own checks do not see) is found when the row is
@@ -155,6 +163,7 @@ class EventKind(enum.Enum):
     REJECTION = "rejection"  # the request's outcome: could not be interpreted, nothing changed
     INTERRUPTED = "interrupted"  # the request's outcome: the computation failed or was stopped
     LOOP_CLOSURE = "loop_closure"  # a loop closure rejected or reinstated (result and poses)
+    ALIGN = "align"  # the map aligned with its scans (the aligned graph, result and poses)
     UNDO = "undo"
     REDO = "redo"
     SAVE = "save"  # the current map was exported to a file

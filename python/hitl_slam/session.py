@@ -1,5 +1,6 @@
 """An editing session on a map: corrections one at a time, loop closures rejected or reinstated
-(on a map the front end built), undo and redo of any depth across both, save; every event
+(on a map the front end built), the map aligned with its scans, undo and redo of any depth across
+all of them, save; every event
 journaled (:mod:`hitl_slam.journal`) before the map in memory changes, so reopening the file
 rebuilds the same state bit for bit from the journal's pose checkpoints (docs/ALGORITHM.md §5).
 """
@@ -39,6 +40,7 @@ from hitl_slam.map import Map
 __all__ = [
     "MOVED_ANGLE_RAD",
     "MOVED_DISTANCE_M",
+    "AlignStep",
     "Applier",
     "CorrectionOutcome",
     "CorrectionStats",
@@ -215,7 +217,49 @@ class _Toggle:
         )
 
 
-_Step = _Entry | _Toggle
+@dataclass(frozen=True, eq=False)
+class AlignStep:
+    """The map aligned with its scans (docs/ALGORITHM.md §I.11), as a step of the session: on the
+    same undo/redo stack as the corrections. While it is in effect its graph (the scans' matched
+    steps and loop closures) replaces the map's factors in every solve."""
+
+    seq: int  # journal sequence number of its event
+    time: float  # Unix time
+    status: EntryStatus  # APPLIED, UNDONE or DISCARDED
+    stats: CorrectionStats  # the solve of every correction in effect over the aligned graph
+    loop_closures: int  # loop closures the front end kept
+    loop_closures_rejected: int
+    steps: int  # odometry steps of the input map checked by the guard
+    contradicted: int  # of them, contradicted by the aligned poses beyond their 99.9% bound
+
+
+@dataclass(eq=False)
+class _Align:
+    seq: int
+    time: float
+    stats: CorrectionStats
+    status: EntryStatus
+    poses: NDArray[np.float64] | None  # checkpoint, while applied or redoable
+    lines: NDArray[np.float64] | None  # (2K, 2) the re-solved lines of the corrections in effect
+    edges: NDArray[np.int64]
+    measurements: NDArray[np.float64]
+    information: NDArray[np.float64]
+    counts: tuple[int, int, int, int]  # loop closures kept, rejected; steps, contradicted
+    graph: Map | None = None  # the aligned map, made on first use
+
+    def snapshot(self) -> AlignStep:
+        kept, rejected, steps, bad = self.counts
+        return AlignStep(self.seq, self.time, self.status, self.stats, kept, rejected, steps, bad)
+
+    def map_of(self, map: Map) -> Map:
+        if self.graph is None:
+            from hitl_slam.alignment import aligned_map
+
+            self.graph = aligned_map(map, self.edges, self.measurements, self.information)
+        return self.graph
+
+
+_Step = _Entry | _Toggle | _Align
 
 
 def _frozen(poses: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -237,6 +281,29 @@ def _loop_state(rejected: bool) -> str:
     return "rejected" if rejected else "in the solve"
 
 
+def _graph_from_json(
+    data: Any, num_poses: int
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """An ``align`` event's ``graph``: edges, measurements and information (ValueError when
+    malformed: missing, not finite, an edge outside the map or from a pose to itself)."""
+    if not isinstance(data, dict):
+        raise ValueError("its graph is not a JSON object")
+    edges = np.array(data["edges"], dtype=np.int64)
+    z = np.array(data["measurements"], dtype=np.float64)
+    info = np.array(data["information"], dtype=np.float64)
+    m = edges.shape[0] if edges.ndim == 2 else -1
+    if m < 1 or edges.shape != (m, 2) or z.shape != (m, 3) or info.shape != (m, 9):
+        raise ValueError(
+            f"its graph must hold M edges, measurements and information rows of 2, 3 and 9 "
+            f"numbers; got shapes {edges.shape}, {z.shape}, {info.shape}"
+        )
+    if not (np.isfinite(z).all() and np.isfinite(info).all()):
+        raise ValueError("its graph holds a value that is not finite")
+    if edges.min() < 0 or edges.max() >= num_poses or (edges[:, 0] == edges[:, 1]).any():
+        raise ValueError(f"its graph has an edge outside the map's {num_poses} poses")
+    return edges, z, info.reshape(m, 3, 3)
+
+
 def _drawn_from_json(data: Any) -> DrawnCorrection:
     if not isinstance(data, dict):
         raise TypeError("the correction is not a JSON object")
@@ -254,6 +321,7 @@ class _State:
         self.applied: list[_Step] = []
         self.redo: list[_Step] = []
         self.toggles: list[_Toggle] = []
+        self.aligns: list[_Align] = []
         self.pending: _Entry | None = None
 
     @classmethod
@@ -272,6 +340,22 @@ class _State:
                 else:
                     out.discard(step.loop)
         return frozenset(out)
+
+    def alignment(self) -> _Align | None:
+        """The alignment in effect: the last applied one (each replaces the previous one's
+        graph), or None."""
+        for step in reversed(self.applied):
+            if isinstance(step, _Align):
+                return step
+        return None
+
+    def graph(self, map: Map) -> Map:
+        """The map every solve runs over now: the aligned map while an alignment is in effect,
+        otherwise ``map`` without the rejected loop closures."""
+        aligned = self.alignment()
+        if aligned is not None:
+            return aligned.map_of(map)
+        return effective_map(map, self.rejected())
 
     @property
     def poses(self) -> NDArray[np.float64]:
@@ -308,6 +392,8 @@ class _State:
             raise ValueError(f"loop closure {loop} is not edge {payload['edge']!r} of the map")
         if (loop in self.rejected()) == rejected:
             raise ValueError(f"loop closure {loop} is already {_loop_state(rejected)}")
+        if self.alignment() is not None:
+            raise ValueError("a loop closure step while an alignment with the scans is in effect")
         poses = event.poses
         if poses is None or poses.dtype != np.float64 or poses.shape != self.initial.shape:
             raise ValueError("a loop closure step without a valid pose checkpoint")
@@ -324,6 +410,35 @@ class _State:
         self._discard_redo()
         self.applied.append(toggle)
         self.toggles.append(toggle)
+
+    def _align(self, event: Event) -> None:
+        """An ``align`` event: its graph and checkpoint checked against the map."""
+        payload = event.payload
+        poses = event.poses
+        if poses is None or poses.dtype != np.float64 or poses.shape != self.initial.shape:
+            raise ValueError("an alignment without a valid pose checkpoint")
+        edges, z, info = _graph_from_json(payload.get("graph"), self.initial.shape[0])
+        counts = tuple(
+            payload.get(k)
+            for k in ("loop_closures", "loop_closures_rejected", "steps", "contradicted")
+        )
+        if not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in counts):
+            raise ValueError(f"its counts are not whole numbers: {counts!r}")
+        step = _Align(
+            seq=event.seq,
+            time=event.time,
+            stats=CorrectionStats.from_json(payload["stats"]),
+            status=EntryStatus.APPLIED,
+            poses=_frozen(np.ascontiguousarray(poses)),
+            lines=_lines_from_json(payload["lines"], 2 * len(self.active())),
+            edges=edges,
+            measurements=z,
+            information=info,
+            counts=counts,  # type: ignore[arg-type]
+        )
+        self._discard_redo()
+        self.applied.append(step)
+        self.aligns.append(step)
 
     def close_pending(self, reason: str) -> None:
         if self.pending is not None:
@@ -376,6 +491,9 @@ class _State:
         elif kind is EventKind.LOOP_CLOSURE:
             self.close_pending(_DIED)
             self._toggle(event)
+        elif kind is EventKind.ALIGN:
+            self.close_pending(_DIED)
+            self._align(event)
         elif kind is EventKind.UNDO:
             self.close_pending(_DIED)
             step = self._stacked(event, self.applied)
@@ -449,6 +567,8 @@ def _describe(state: _State) -> str:
     if isinstance(top, _Toggle):
         verb = "rejecting" if top.rejected else "reinstating"
         return f"the map after {verb} loop closure {top.loop} ({applied} steps applied)"
+    if isinstance(top, _Align):
+        return f"the map after aligning it with its scans ({applied} steps applied)"
     return f"the map after correction {top.index + 1} of the history ({applied} applied)"
 
 
@@ -559,7 +679,7 @@ class StepResult:
 
     action: str
     outcome: CorrectionOutcome | None
-    entry: HistoryEntry | LoopClosureStep
+    entry: HistoryEntry | LoopClosureStep | AlignStep
     time_s: float
 
 
@@ -759,18 +879,20 @@ class Session:
         session started from it starts where this one is."""
         with self._guard:
             poses = self._state.poses.copy()
-            target = effective_map(self._map, self._state.rejected())
+            target = self._state.graph(self._map)
         metadata = target.metadata
-        if self._state.loops is not None:
+        if EDGES in metadata:
             metadata = dict(metadata)
             metadata[AUTO_REJECTED] = np.zeros(np.shape(metadata[EDGES]), dtype=bool)
         return dataclasses.replace(target, poses=poses, metadata=metadata)
 
     def solved_map(self) -> Map:
         """The map the session's corrections solve over now: the input map without the rejected
-        loop closures (the input map itself when none is rejected), with the input poses."""
+        loop closures (the input map itself when none is rejected), or while an alignment with
+        the scans is in effect the aligned map (its graph instead of the map's factors); with
+        the input poses."""
         with self._guard:
-            return effective_map(self._map, self._state.rejected())
+            return self._state.graph(self._map)
 
     @property
     def loop_closures(self) -> list[LoopClosure]:
@@ -874,7 +996,7 @@ class Session:
                 assert pending is not None
                 before = self._state.poses
                 active = self._state.active()
-                target = effective_map(self._map, self._state.rejected())
+                target = self._state.graph(self._map)
             seq = pending.seq
             try:
                 outcome = apply(target, before, drawn, active, self._config)
@@ -928,6 +1050,7 @@ class Session:
                 current = self._state.rejected()
                 before = self._state.poses
                 active = self._state.active()
+                aligned = self._state.alignment() is not None
             if loops is None or loops.count == 0:
                 raise InputError(
                     "this map has no loop closures to reject or reinstate; only maps the front "
@@ -943,6 +1066,11 @@ class Session:
             rejected = bool(rejected)
             if (loop in current) == rejected:
                 raise StepRefused(f"loop closure {loop} is already {_loop_state(rejected)}")
+            if aligned:
+                raise StepRefused(
+                    "the map is aligned with its scans: the alignment's own loop closures "
+                    "replaced the map's; undo the alignment to reject or reinstate the map's"
+                )
             wanted = current | {loop} if rejected else current - {loop}
             target = effective_map(self._map, wanted)
             t0 = time.perf_counter()
@@ -975,16 +1103,72 @@ class Session:
                 assert isinstance(top, _Toggle)
                 return top.snapshot()
 
-    def undo(self) -> HistoryEntry | LoopClosureStep:
-        """Undo the last applied step (a correction, or a loop closure rejected or reinstated):
-        the map returns exactly to what it was before it.
+    def align(self, progress: Callable[[int, int], object] | None = None) -> AlignStep:
+        """Align the map with its scans (docs/ALGORITHM.md §I.11): the front end matches the
+        scans again from the current poses, its graph replaces the map's factors, and every
+        correction in effect is solved again over it. Journaled (with the new poses as a
+        checkpoint) before the map changes; a step on the undo/redo stack like a correction.
+        ``progress(done, total)`` is called as the scans are matched.
+
+        Raises:
+            InputError: the map has no scans to match.
+            AlignmentRefused: the aligned map contradicts the robot's odometry at too many steps
+                (an InputError, with the figures); nothing changed.
+            SolverError: the solve failed; nothing changed and nothing was journaled.
+        """
+        from hitl_slam.alignment import align
+
+        with self._operation:
+            self._check_open()
+            with self._guard:
+                before = self._state.poses
+                active = self._state.active()
+            t0 = time.perf_counter()
+            done = align(self._map, before, active, self._config, progress=progress)
+            elapsed = time.perf_counter() - t0
+            after = _checked_poses(done.poses, before.shape)
+            solved = np.array(done.lines, dtype=np.float64).reshape(-1, 2)
+            if solved.shape != (2 * len(active), 2) or not np.isfinite(solved).all():
+                raise SolverError("the aligned solve returned malformed lines; nothing changed")
+            moved, largest = moved_poses(before, after)
+            stats = CorrectionStats(
+                iterations=done.iterations,
+                initial_chi2=done.initial_chi2,
+                final_chi2=done.final_chi2,
+                time_s=elapsed,
+                poses_moved=moved,
+                max_move_m=largest,
+            )
+            m = done.edges.shape[0]
+            payload = {
+                "graph": {
+                    "edges": done.edges,
+                    "measurements": done.measurements.tolist(),
+                    "information": done.information.reshape(m, 9).tolist(),
+                },
+                "stats": stats.to_json(),
+                "lines": solved.tolist(),
+                "loop_closures": done.loop_closures,
+                "loop_closures_rejected": done.loop_closures_rejected,
+                "steps": done.steps,
+                "contradicted": done.contradicted,
+            }
+            self._record(EventKind.ALIGN, payload, after)
+            with self._guard:
+                top = self._state.applied[-1]
+                assert isinstance(top, _Align)
+                return top.snapshot()
+
+    def undo(self) -> HistoryEntry | LoopClosureStep | AlignStep:
+        """Undo the last applied step (a correction, a loop closure rejected or reinstated, or an
+        alignment): the map returns exactly to what it was before it.
 
         Raises:
             StepRefused: nothing to undo (an InputError).
         """
         return self._step(EventKind.UNDO)
 
-    def redo(self) -> HistoryEntry | LoopClosureStep:
+    def redo(self) -> HistoryEntry | LoopClosureStep | AlignStep:
         """Redo the last undone step (its stored result; nothing is recomputed).
 
         Raises:
@@ -1005,7 +1189,7 @@ class Session:
         t0 = time.perf_counter()
         if isinstance(step, Apply):
             outcome: CorrectionOutcome | None = self.apply(step.drawn)
-            entry: HistoryEntry | LoopClosureStep = self.history[-1]
+            entry: HistoryEntry | LoopClosureStep | AlignStep = self.history[-1]
             action = "apply"
         else:
             outcome = None
@@ -1013,7 +1197,7 @@ class Session:
             entry = self.undo() if action == "undo" else self.redo()
         return StepResult(action, outcome, entry, time.perf_counter() - t0)
 
-    def _step(self, kind: EventKind) -> HistoryEntry | LoopClosureStep:
+    def _step(self, kind: EventKind) -> HistoryEntry | LoopClosureStep | AlignStep:
         with self._operation:
             self._check_open()
             with self._guard:
@@ -1069,9 +1253,10 @@ class Session:
 
     def replay(self, applier: Applier | None = None) -> tuple[NDArray[np.float64], list[Any]]:
         """Recompute the applied steps from the input poses, from scratch, to verify the stored
-        result: each correction on the map as it stood, each loop closure step as its re-solve.
-        Changes nothing. Returns the final poses and each step's outcome (a loop closure step's:
-        its SolveReport); with the same build the poses equal :attr:`poses` bit for bit.
+        result: each correction on the map as it stood, each loop closure step as its re-solve,
+        each alignment as its alignment. Changes nothing. Returns the final poses and each step's
+        outcome (a loop closure step's: its SolveReport; an alignment's: its Alignment); with
+        the same build the poses equal :attr:`poses` bit for bit.
 
         Raises:
             CorrectionRejected: a correction cannot be interpreted (its index is in the message).
@@ -1086,13 +1271,24 @@ class Session:
         poses = np.array(self._map.poses, dtype=np.float64, order="C")
         active: list[Interpretation] = []
         outcomes: list[Any] = []
+        aligned: Map | None = None
         for k, step in enumerate(steps):
+            if isinstance(step, _Align):
+                from hitl_slam.alignment import align, aligned_map
+
+                done = align(self._map, poses, active, self._config)
+                poses = _checked_poses(done.poses, poses.shape)
+                aligned = aligned_map(self._map, done.edges, done.measurements, done.information)
+                outcomes.append(done)
+                continue
             if isinstance(step, _Toggle):
                 if step.rejected:
                     rejected.add(step.loop)
                 else:
                     rejected.discard(step.loop)
-            target = effective_map(self._map, frozenset(rejected))
+            target = (
+                aligned if aligned is not None else effective_map(self._map, frozenset(rejected))
+            )
             if isinstance(step, _Toggle):
                 solved, _, report = solve_all(target, active, self._config, start=poses)
                 poses = _checked_poses(solved, poses.shape)

@@ -1,0 +1,177 @@
+"""Aligning a corrected map with its scans (docs/ALGORITHM.md §I.11).
+
+A person's statements bring the copies of a wall together to within the drawing's accuracy; what
+is left (centimetres between dense passes, the odometry's own noise along every pass) is what the
+scans themselves resolve. Alignment runs the scan-matching front end (§F) again, with the current
+poses as its odometry: every scan matched to its local map, loop closures searched between the
+passes the corrections brought together. Its graph (the matched steps and the loop closures it
+kept) then replaces the map's factors, and every correction in effect is solved again over it.
+
+Scan matching can be wrong where the scans say little (a featureless corridor, a sparse or
+simulated scanner), and then it contradicts the robot's own odometry at many steps at once. The
+guard measures that without the truth: the share of the input map's odometry steps the aligned
+poses contradict beyond the 99.9% chi2 bound under the odometry's own information. Above
+``Config.align_max_contradicted`` the alignment is refused with the figures and nothing changes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hitl_slam.config import DEFAULT, Config
+from hitl_slam.corrections import Interpretation
+from hitl_slam.errors import InputError
+from hitl_slam.map import InformationSource, Map
+
+__all__ = ["CHI2_3_999", "Alignment", "AlignmentRefused", "align", "aligned_map", "contradicted"]
+
+FloatArray = NDArray[np.float64]
+
+CHI2_3_999 = 16.266
+"""The 99.9% quantile of chi2 with 3 degrees of freedom: a step beyond it contradicts the
+odometry."""
+
+_MIN_POINTS_PER_SCAN = 20
+"""Fewer laser points per scan on average than this and there is nothing to match."""
+
+
+class AlignmentRefused(InputError):
+    """The alignment contradicts the robot's odometry too often to be trusted: nothing changed."""
+
+
+@dataclass(frozen=True, eq=False)
+class Alignment:
+    """The result of :func:`align`: the aligned graph's factors (``edges`` ``(M, 2)``,
+    ``measurements`` ``(M, 3)``, ``information`` ``(M, 3, 3)``; the matched steps first, then
+    the loop closures kept), the solved poses and lines, and what the guard measured."""
+
+    edges: NDArray[np.int64]
+    measurements: FloatArray
+    information: FloatArray
+    poses: FloatArray
+    lines: FloatArray
+    loop_closures: int  # kept by the front end
+    loop_closures_rejected: int
+    steps: int  # odometry steps of the input map checked
+    contradicted: int  # of them, contradicted by the aligned poses
+    iterations: int
+    initial_chi2: float
+    final_chi2: float
+    time_s: float
+
+
+def contradicted(map: Map, poses: FloatArray) -> tuple[int, int]:
+    """``(k, n)``: of ``map``'s ``n`` odometry steps (edges between consecutive poses), the
+    ``k`` that ``poses`` contradict beyond :data:`CHI2_3_999` (squared Mahalanobis distance of
+    the relative pose, under the step's own information)."""
+    e = map.edges
+    chain = np.abs(e[:, 1] - e[:, 0]) == 1
+    n = int(chain.sum())
+    if n == 0:
+        return 0, 0
+    i, j = e[chain, 0], e[chain, 1]
+    c, s = np.cos(poses[i, 2]), np.sin(poses[i, 2])
+    d = poses[j, :2] - poses[i, :2]
+    rel = np.stack(
+        [c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], poses[j, 2] - poses[i, 2]], 1
+    )
+    r = rel - map.measurements[chain]
+    r[:, 2] = np.angle(np.exp(1j * r[:, 2]))
+    d2 = np.einsum("ki,kij,kj->k", r, map.information[chain], r)
+    return int(np.count_nonzero(~(d2 <= CHI2_3_999))), n
+
+
+def aligned_map(
+    map: Map,
+    edges: NDArray[np.int64],
+    measurements: FloatArray,
+    information: FloatArray,
+) -> Map:
+    """``map`` (its poses, scans and metadata) with its factors replaced by an alignment's. The
+    map's loop closures (if it lists any) are not among them: an alignment's are its own."""
+    from hitl_slam.interpret import share_scans
+    from hitl_slam.loop_closures import KEYS
+
+    out = dataclasses.replace(
+        map,
+        edges=np.ascontiguousarray(edges, dtype=np.int64),
+        measurements=np.ascontiguousarray(measurements, dtype=np.float64),
+        information=np.ascontiguousarray(information, dtype=np.float64),
+        information_source=np.full(edges.shape[0], InformationSource.INPUT, dtype=np.int8),
+        metadata={k: v for k, v in map.metadata.items() if k not in KEYS},
+    )
+    share_scans(map, out)
+    return out
+
+
+def align(
+    map: Map,
+    poses: FloatArray,
+    active: Sequence[Interpretation],
+    config: Config = DEFAULT,
+    *,
+    progress: Callable[[int, int], object] | None = None,
+) -> Alignment:
+    """Aligns ``map`` (the input map: its scans and odometry) at ``poses`` (the corrected poses)
+    with its scans, keeping every correction in ``active`` (see the module's notes).
+
+    Raises:
+        InputError: the map has too few laser points to match.
+        AlignmentRefused: the aligned poses contradict more than
+            ``config.align_max_contradicted`` of the odometry steps.
+        SolverError: the joint solve failed.
+    """
+    from hitl_slam.pipeline import solve_all
+    from hitl_slam.slam import slam
+
+    n = map.num_poses
+    if n < 2 or map.num_points < _MIN_POINTS_PER_SCAN * n:
+        raise InputError(
+            f"{map.name}: {map.num_points} laser points over {n} poses; aligning with the scans "
+            f"needs scans of at least {_MIN_POINTS_PER_SCAN} points on average (a pose graph "
+            "without scans cannot be aligned)"
+        )
+    t0 = time.perf_counter()
+    seeded = dataclasses.replace(map, poses=np.ascontiguousarray(poses, dtype=np.float64))
+    front = slam(seeded, progress=progress)
+    graph = front.accepted_map()
+    start = graph.poses
+    solved, lines, report = solve_all(graph, active, config, start=start)
+    solved = np.asarray(solved, dtype=np.float64)
+    if solved.shape != (n, 3) or not np.isfinite(solved).all():
+        from hitl_slam.errors import SolverError
+
+        raise SolverError("the aligned solve returned malformed poses; the map was not changed")
+    k, steps = contradicted(map, solved)
+    kept = int(front.loop_closures.accepted.sum())
+    rejected = int(front.loop_closures.pairs.shape[0]) - kept
+    if steps and k > config.align_max_contradicted * steps:
+        raise AlignmentRefused(
+            f"the scans disagree with the odometry: the aligned map contradicts {k} of the "
+            f"{steps} odometry steps ({100 * k / steps:.1f}%) beyond their 99.9% bound, more "
+            f"than the {100 * config.align_max_contradicted:.1f}% allowed "
+            "(config align_max_contradicted); the map was not changed. Scan matching is "
+            "unreliable on these scans here (few features, or a fault not yet corrected): "
+            "correct what is left by drawing"
+        )
+    return Alignment(
+        edges=graph.edges,
+        measurements=graph.measurements,
+        information=graph.information,
+        poses=solved,
+        lines=np.asarray(lines, dtype=np.float64).reshape(-1, 2),
+        loop_closures=kept,
+        loop_closures_rejected=rejected,
+        steps=steps,
+        contradicted=k,
+        iterations=int(report.iterations),
+        initial_chi2=float(report.initial_chi2),
+        final_chi2=float(report.final_chi2),
+        time_s=time.perf_counter() - t0,
+    )
