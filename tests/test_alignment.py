@@ -138,7 +138,9 @@ def test_aligning_a_repaired_real_log_closes_the_last_centimetres(
         assert s.solved_map().edges.shape[0] >= s.input_map.num_poses - 1
         assert s.solved_map() is not s.input_map
         assert len(s.lines) == 2 * run["corrections"]
+        assert s.aligned
         s.undo()
+        assert not s.aligned
         assert np.array_equal(s.poses, run["before_poses"])
         assert s.solved_map() is s.input_map
         s.redo()

@@ -895,6 +895,13 @@ class Session:
             return self._state.graph(self._map)
 
     @property
+    def aligned(self) -> bool:
+        """Whether an alignment with the scans is in effect (:meth:`align`): every solve then
+        runs over its graph, and the map's own loop closures cannot be rejected or reinstated."""
+        with self._guard:
+            return self._state.alignment() is not None
+
+    @property
     def loop_closures(self) -> list[LoopClosure]:
         """Every loop closure of the map (a map built by the front end; empty for any other),
         each with its pair of poses, the front end's trust in it (weight, 0..1), its score, and

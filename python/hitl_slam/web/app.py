@@ -19,6 +19,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.staticfiles import StaticFiles
 from starlette.types import Receive, Scope, Send
 
+from hitl_slam.alignment import AlignmentRefused
 from hitl_slam.errors import HitlSlamError, InputError, SolverError
 from hitl_slam.web import schemas
 from hitl_slam.web.host import NothingToDo, OutsideFolder, SessionHost
@@ -131,9 +132,12 @@ def create_app(
         return JSONResponse({"detail": detail}, status_code=422)
 
     # Starlette picks the handler of the most specific class, so the subclasses come first
-    # only for the reader: NothingToDo and OutsideFolder are InputErrors with their own status.
+    # only for the reader: NothingToDo, AlignmentRefused and OutsideFolder are InputErrors with
+    # their own status (a refused alignment is not a malformed request: the map, as it stands,
+    # cannot be aligned now; nothing changed).
     for error, status in (
         (NothingToDo, 409),
+        (AlignmentRefused, 409),
         (OutsideFolder, 403),
         (InputError, 400),
         (SolverError, 500),
@@ -210,6 +214,11 @@ def create_app(
     @app.post("/api/loop_closures", response_model=schemas.State)
     async def set_loop_closure(request: schemas.LoopClosureRequest) -> dict[str, Any]:
         return await run_in_threadpool(host.set_loop_closure, request.index, request.rejected)
+
+    @app.post("/api/align", response_model=schemas.State)
+    async def align() -> dict[str, Any]:
+        # Seconds to a minute on a big map: the long-poll and the reads keep answering meanwhile.
+        return await run_in_threadpool(host.align)
 
     @app.post("/api/undo", response_model=schemas.State)
     async def undo() -> dict[str, Any]:

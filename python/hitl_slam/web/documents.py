@@ -13,9 +13,9 @@ from numpy.typing import NDArray
 from hitl_slam.corrections import Interpretation
 from hitl_slam.loop_closures import LoopClosure
 from hitl_slam.map import Map
-from hitl_slam.session import HistoryEntry
+from hitl_slam.session import AlignStep, HistoryEntry
 
-__all__ = ["history_item", "last_change", "loop_closures", "preview", "segment_json"]
+__all__ = ["alignment", "history_item", "last_change", "loop_closures", "preview", "segment_json"]
 
 
 def segment_json(segment: Any) -> list[list[float]]:
@@ -86,8 +86,10 @@ def last_change(
     initial_cost: float = 0.0,
     iterations: int = 0,
     reason: str | None = None,
+    alignment: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The State's ``last``: what the latest change was and what it cost."""
+    """The State's ``last``: what the latest change was and what it cost (and for an
+    alignment with the scans, its figures: :func:`alignment`)."""
     return {
         "kind": kind,
         "time_ms": time_ms,
@@ -95,4 +97,19 @@ def last_change(
         "initial_cost": initial_cost,
         "iterations": iterations,
         "reason": reason,
+        "alignment": alignment,
+    }
+
+
+def alignment(step: AlignStep) -> dict[str, Any]:
+    """The figures of an alignment with the scans, for its ``last``: the loop closures the
+    front end kept and rejected, the input map's odometry steps the guard checked and how many
+    of them the aligned map contradicts, and how far the poses moved."""
+    return {
+        "loop_closures": step.loop_closures,
+        "loop_closures_rejected": step.loop_closures_rejected,
+        "steps": step.steps,
+        "contradicted": step.contradicted,
+        "poses_moved": step.stats.poses_moved,
+        "max_move_m": step.stats.max_move_m,
     }

@@ -76,9 +76,10 @@ class Snapshot:
 class SessionHost:
     """Serves one session to any number of clients.
 
-    Changes (apply, undo, redo, journal step) run one at a time; each publishes a new
-    :class:`Snapshot` with a higher version and wakes every waiter (threading and listener
-    callbacks). Reads never wait for a running solve: they see the last published snapshot.
+    Changes (apply, loop closure, alignment, undo, redo, journal step) run one at a time; each
+    publishes a new :class:`Snapshot` with a higher version and wakes every waiter (threading
+    and listener callbacks). Reads never wait for a running solve: they see the last published
+    snapshot.
     The host owns ``session`` and closes it in :meth:`close`.
 
     Args:
@@ -266,7 +267,8 @@ class SessionHost:
         re-solving the map; the new State (its ``last`` says what the re-solve cost).
 
         Raises:
-            NothingToDo: it is already rejected, or already in the solve.
+            NothingToDo: it is already rejected, or already in the solve, or the map is aligned
+                with its scans (the alignment's own loop closures replaced the map's).
             InputError: the map has no loop closure ``index``.
             SolverError: the re-solve failed; nothing changed.
         """
@@ -287,8 +289,37 @@ class SessionHost:
             )
             return self.state(self._publish(last))
 
+    def align(self) -> dict[str, Any]:
+        """Align the map with its scans (serialized with every other change; seconds to a
+        minute on a big map): the scans are matched again from the current poses, their graph
+        replaces the map's factors and every correction in effect is solved again over it. The
+        new State: its ``last`` (kind ``"align"``) says what the solve cost and carries the
+        alignment's figures. A step on the undo/redo stack like a correction.
+
+        Raises:
+            AlignmentRefused: the aligned map contradicts the odometry at too many steps (an
+                InputError, with the figures); nothing changed.
+            InputError: the map has no scans to match.
+            SolverError: the solve failed; nothing changed.
+        """
+        with self._operation:
+            self._check_open()
+            t0 = time.perf_counter()
+            step = self._session.align()
+            stats = step.stats
+            last = documents.last_change(
+                "align",
+                1e3 * (time.perf_counter() - t0),
+                cost=stats.final_chi2,
+                initial_cost=stats.initial_chi2,
+                iterations=stats.iterations,
+                alignment=documents.alignment(step),
+            )
+            return self.state(self._publish(last))
+
     def undo(self) -> dict[str, Any]:
-        """Undo the last applied step (a correction or a loop closure step); the new State.
+        """Undo the last applied step (a correction, a loop closure step or an alignment); the
+        new State.
 
         Raises:
             NothingToDo: nothing to undo.

@@ -14,6 +14,7 @@ from hitl_slam.corrections import DrawnCorrection
 __all__ = [
     "MAX_COORDINATE",
     "MAX_SIGMA_H",
+    "AlignmentFigures",
     "Applied",
     "AppliedAccepted",
     "CorrectionLines",
@@ -106,13 +107,25 @@ class _Response(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
+class AlignmentFigures(_Response):
+    """What an alignment with the scans found (``last.alignment`` of kind ``"align"``)."""
+
+    loop_closures: int  # loop closures the front end kept
+    loop_closures_rejected: int  # and those it rejected
+    steps: int  # odometry steps of the input map the guard checked
+    contradicted: int  # of them, contradicted by the aligned poses beyond their 99.9% bound
+    poses_moved: int  # poses that moved (more than 1 mm or 1 mrad)
+    max_move_m: float  # [m] the largest change of a pose position
+
+
 class Last(_Response):
-    kind: Literal["apply", "undo", "redo", "reject", "loop_closure"]
+    kind: Literal["apply", "undo", "redo", "reject", "loop_closure", "align"]
     time_ms: float
     cost: float
     initial_cost: float
     iterations: int
     reason: str | None
+    alignment: AlignmentFigures | None = None  # kind "align" only (an addition to the contract)
 
 
 class HistoryItem(_Response):

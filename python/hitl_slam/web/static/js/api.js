@@ -17,10 +17,11 @@ let token = null;
 }
 
 export class ApiError extends Error {
-  constructor(message, status = 0) {
+  constructor(message, status = 0, detail = "") {
     super(message);
     this.name = "ApiError";
     this.status = status; // HTTP status, 0 for a network failure
+    this.detail = detail; // the server's own words (its "detail"), without what we add
   }
 }
 
@@ -61,7 +62,7 @@ async function request(path, init = {}) {
     413: "request too large",
     422: "the server did not understand the request",
   }[response.status] || `server error ${response.status}`;
-  throw new ApiError(`${what}: ${detail}`, response.status);
+  throw new ApiError(`${what}: ${detail}`, response.status, detail);
 }
 
 async function getJson(path, signal) {
@@ -120,6 +121,13 @@ export const getLoopClosures = () => getJson("api/loop_closures");
 
 /** POST /api/loop_closures: reject loop closure `index` (or reinstate it); the new State. */
 export const setLoopClosure = (index, rejected) => postJson("api/loop_closures", { index, rejected });
+
+/**
+ * POST /api/align: match the scans again from the current poses, keeping every correction; the
+ * new State (last.kind "align"). A refusal is an ApiError of status 409 (400: no scans), the map
+ * unchanged.
+ */
+export const align = () => postJson("api/align");
 
 export const undo = () => postJson("api/undo");
 export const redo = () => postJson("api/redo");

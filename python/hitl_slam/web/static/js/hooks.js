@@ -9,7 +9,9 @@
 //   mode             mode of the pending correction ("collinear", ...) or null
 //   correcting       whether correction mode (key p) is on
 //   pending          how many segments of the pending pair are drawn (0, 1 or 2)
-//   message          {text, kind} of #message; kind "rejected", "error", "ok", "info" or ""
+//   message          {text, kind} of #message; kind "rejected", "error", "ok", "info", "busy"
+//                    (an alignment running) or ""
+//   busy             whether a command (apply, undo, redo, align, ...) is in flight
 //   worldToClient(x, y) -> [clientX, clientY]   world metres to page (viewport) pixels
 //   clientToWorld(cx, cy) -> [x, y]
 //   lookAt(x, y, pixelsPerMetre)                centre the view (pixelsPerMetre optional)
@@ -57,6 +59,9 @@ export function installHooks(app) {
     },
     get message() {
       return { ...app.ui.message };
+    },
+    get busy() {
+      return app.busy;
     },
     get preview() {
       return app.preview;

@@ -94,6 +94,7 @@ export function attachInput(app, canvas) {
       p: () => app.togglePOrApply(),
       u: () => app.undo(),
       U: () => app.redo(),
+      A: () => app.align(),
       v: () => app.save(),
       l: () => app.journalStep(),
       c: () => app.toggleLoops(),

@@ -32,7 +32,7 @@ class App {
     this.preview = null; // answer of /api/interpret for the pending pair
     this.previewSeq = 0;
     this.highlights = { a: 0, b: 0 };
-    this.busy = false; // an apply/undo/redo/step request in flight
+    this.busy = false; // a command (apply, undo, redo, step, loop closure, align, save) in flight
     this.loading = null; // the running map fetch (one at a time)
     this.wanted = -1; // newest state version whose map should be fetched
     this.measure = null; // {t0, t1, solveMs, version} of the apply awaiting its first frame
@@ -76,6 +76,7 @@ class App {
     on("btn-apply", () => this.apply());
     on("btn-undo", () => this.undo());
     on("btn-redo", () => this.redo());
+    on("btn-align", () => this.align());
     on("btn-fit", () => this.fit());
     on("btn-save", () => this.save());
     on("btn-journal", () => this.journalStep());
@@ -490,6 +491,38 @@ class App {
     });
   }
 
+  /**
+   * Shift+A: align the map with its scans (the server matches them again from the current poses
+   * and keeps every correction; seconds to a minute). A refusal (the aligned map would
+   * contradict the odometry too often, or the map has no scans) is shown as a refused
+   * correction is, the map unchanged; undo returns to the map before an alignment.
+   */
+  align() {
+    return this.command(async () => {
+      this.ui.show("aligning the map with its scans\u2026 (up to a minute on a big map)", "busy");
+      let s;
+      try {
+        s = await api.align();
+      } catch (e) {
+        if (e instanceof api.ApiError && (e.status === 409 || e.status === 400)) {
+          this.ui.show(`alignment refused: ${e.detail}`, "rejected");
+          return;
+        }
+        throw e;
+      }
+      const last = s.last;
+      const a = last && last.alignment;
+      const took = last ? ` in ${(last.time_ms / 1000).toFixed(1)} s` : "";
+      const figures = a
+        ? ` (${a.poses_moved} poses moved, at most ${a.max_move_m.toFixed(2)} m; ` +
+          `${a.loop_closures} loop closure${a.loop_closures === 1 ? "" : "s"}; ` +
+          `${a.contradicted} of ${a.steps} odometry steps contradicted)`
+        : "";
+      this.ui.show(`aligned with the scans${took}${figures}; u returns to the map before`, "ok");
+      this.setState(s);
+    }, "align");
+  }
+
   journalStep() {
     return this.command(async () => {
       const r = await api.journalStep();
@@ -507,19 +540,22 @@ class App {
     });
   }
 
-  /** Runs one server command at a time; its errors go to #message. */
-  async command(f) {
+  /** Runs one server command (named `what`) at a time; its errors go to #message. */
+  async command(f, what = "command") {
     if (this.busy) {
-      this.ui.show("busy: the previous command is still running", "info");
+      // While aligning, the banner already says what runs (and must not fade).
+      if (this.ui.message.kind !== "busy") this.ui.show("busy: the previous command is still running", "info");
       return;
     }
     this.busy = true;
+    this.ui.setBusy(what);
     try {
       await f();
     } catch (e) {
       this.error(e);
     } finally {
       this.busy = false;
+      this.ui.setBusy(null);
     }
   }
 

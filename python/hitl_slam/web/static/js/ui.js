@@ -19,7 +19,10 @@ export class Ui {
     this.messageTimer = null;
   }
 
-  /** Shows `text` in #message; kind "rejected" / "error" stay until replaced, others fade. */
+  /**
+   * Shows `text` in #message; kinds "info" and "ok" fade, the others ("rejected", "error",
+   * "busy") stay until replaced.
+   */
   show(text, kind = "info") {
     const el = $("message");
     this.message = { text, kind };
@@ -123,6 +126,20 @@ export class Ui {
 
   hintVisible() {
     return !$("hint").hidden;
+  }
+
+  /**
+   * While a command is in flight (`what`: its name, null when none is): the align button is
+   * disabled, and says so while the alignment itself runs (it takes seconds to a minute).
+   */
+  setBusy(what) {
+    const button = $("btn-align");
+    const aligning = what === "align";
+    button.disabled = what !== null;
+    button.classList.toggle("busy", aligning);
+    button.setAttribute("aria-busy", String(aligning));
+    button.textContent = aligning ? "Aligning\u2026" : "Align with scans";
+    document.body.classList.toggle("aligning", aligning);
   }
 
   setApplyReady(ready) {
