@@ -66,6 +66,13 @@ class Alignment:
     time_s: float
 
 
+def aligned_config(config: Config) -> Config:
+    """The configuration of every solve over an aligned graph: each correction's relation
+    carries dynamic covariance scaling with ``config.align_relation_dcs`` (the scans are a
+    second witness: a statement they contradict yields to them)."""
+    return config.replace(relation_dcs=config.align_relation_dcs)
+
+
 def contradicted(map: Map, poses: FloatArray) -> tuple[int, int]:
     """``(k, n)``: of ``map``'s ``n`` odometry steps (edges between consecutive poses), the
     ``k`` that ``poses`` contradict beyond :data:`CHI2_3_999` (squared Mahalanobis distance of
@@ -142,7 +149,7 @@ def align(
     front = slam(seeded, progress=progress)
     graph = front.accepted_map()
     start = graph.poses
-    solved, lines, report = solve_all(graph, active, config, start=start)
+    solved, lines, report = solve_all(graph, active, aligned_config(config), start=start)
     solved = np.asarray(solved, dtype=np.float64)
     if solved.shape != (n, 3) or not np.isfinite(solved).all():
         from hitl_slam.errors import SolverError

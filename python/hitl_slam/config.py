@@ -108,6 +108,11 @@ class Config:
     # alignment with the scans (docs/ALGORITHM.md §I.11): refused when the aligned poses
     # contradict more than this share of the odometry steps beyond their 99.9% bound
     align_max_contradicted: float = 0.05
+    # and every solve over an aligned graph (the alignment's own, and each correction while it
+    # is in effect) gives each correction's relation dynamic covariance scaling with this Phi
+    # instead of relation_dcs: the scans are a second witness, so a statement they contradict
+    # by more than about 1 cm (sqrt(Phi / K1)) yields to them (docs/ALGORITHM.md §I.11)
+    align_relation_dcs: float = 100.0
     # §6.1 metric / occupancy export
     grid_resolution: float = 0.05  # [m]
     # §6.2 inconsistency metric: its robustness rules (without them a perfect map scores 100s m^2)

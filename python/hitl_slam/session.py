@@ -894,6 +894,15 @@ class Session:
         with self._guard:
             return self._state.graph(self._map)
 
+    def _solve_config(self) -> Config:
+        """The configuration corrections solve with now (called with the guard held): the
+        session's, or while an alignment is in effect its :func:`aligned_config`."""
+        if self._state.alignment() is None:
+            return self._config
+        from hitl_slam.alignment import aligned_config
+
+        return aligned_config(self._config)
+
     @property
     def aligned(self) -> bool:
         """Whether an alignment with the scans is in effect (:meth:`align`): every solve then
@@ -1004,9 +1013,10 @@ class Session:
                 before = self._state.poses
                 active = self._state.active()
                 target = self._state.graph(self._map)
+                config = self._solve_config()
             seq = pending.seq
             try:
-                outcome = apply(target, before, drawn, active, self._config)
+                outcome = apply(target, before, drawn, active, config)
                 after = _checked_poses(outcome.poses, before.shape)
                 lines = _checked_lines(outcome, 2 * (len(active) + 1))
                 interpretation = outcome.interpretation.to_json(arrays=True)
@@ -1301,8 +1311,13 @@ class Session:
                 poses = _checked_poses(solved, poses.shape)
                 outcomes.append(report)
                 continue
+            config = self._config
+            if aligned is not None:
+                from hitl_slam.alignment import aligned_config
+
+                config = aligned_config(config)
             poses = _apply_next(
-                apply, target, poses, step.drawn, active, outcomes, self._config, f"step {k + 1}"
+                apply, target, poses, step.drawn, active, outcomes, config, f"step {k + 1}"
             )
         return poses, outcomes
 
