@@ -103,6 +103,7 @@ def test_align_keeps_the_corrections_and_undo_returns_to_the_map_before(
         _correct(client)
         corrected = _poses(client)
         before = _state(client)
+        assert before["aligned"] is False
 
         r = client.post("/api/align")
         assert r.status_code == 200, r.text
@@ -129,6 +130,8 @@ def test_align_keeps_the_corrections_and_undo_returns_to_the_map_before(
         assert [c["index"] for c in state["lines"]] == [0]
         assert (state["can_undo"], state["can_redo"]) == (True, False)
         assert state["loop_closures"] == before["loop_closures"]
+        assert state["aligned"] is True
+        assert _state(client)["aligned"] is True
 
         # The alignment's own loop closures replaced the map's: toggling one is refused, clearly.
         r = client.post("/api/loop_closures", json={"index": 0, "rejected": True})
@@ -136,6 +139,7 @@ def test_align_keeps_the_corrections_and_undo_returns_to_the_map_before(
         assert "aligned with its scans" in r.json()["detail"]
         assert "undo the alignment" in r.json()["detail"]
         assert _state(client)["version"] == state["version"]
+        assert _state(client)["aligned"] is True
         assert _poses(client) == aligned
 
         # Undo: exactly the map before, the correction still in effect; redo: the aligned map.
@@ -146,10 +150,12 @@ def test_align_keeps_the_corrections_and_undo_returns_to_the_map_before(
         assert undone["applied"] == 1
         assert undone["can_redo"]
         assert undone["lines"] == before["lines"]
+        assert undone["aligned"] is False
         redone = client.post("/api/redo").json()
         assert redone["last"]["kind"] == "redo"
         assert _poses(client) == aligned
         assert redone["lines"] == state["lines"]
+        assert redone["aligned"] is True
     host.close()
 
     # Journaled: a restarted server on the same file shows the aligned map, and after undo the
@@ -157,8 +163,10 @@ def test_align_keeps_the_corrections_and_undo_returns_to_the_map_before(
     host, client = _client(path)
     with client:
         assert _poses(client) == aligned
-        assert _state(client)["can_undo"]
-        client.post("/api/undo")
+        restarted = _state(client)
+        assert restarted["can_undo"]
+        assert restarted["aligned"] is True
+        assert client.post("/api/undo").json()["aligned"] is False
         assert _poses(client) == corrected
         r = client.post("/api/loop_closures", json={"index": 0, "rejected": True})
         assert r.status_code == 200, r.text
@@ -173,6 +181,7 @@ def test_a_refused_alignment_answers_409_with_the_reason_and_changes_nothing(
     # odometry steps.
     _, client = served
     before, poses = _state(client), _poses(client)
+    assert before["aligned"] is False
     r = client.post("/api/align")
     assert r.status_code == 409, r.text
     detail = r.json()["detail"]
@@ -180,6 +189,7 @@ def test_a_refused_alignment_answers_409_with_the_reason_and_changes_nothing(
     assert "odometry steps" in detail
     assert "the map was not changed" in detail
     assert _state(client) == before
+    assert _state(client)["aligned"] is False
     assert _poses(client) == poses
     assert client.post("/api/undo").status_code == 409  # nothing was put on the stack
 
@@ -250,9 +260,11 @@ def test_other_requests_are_answered_while_an_alignment_runs(
         undoing.join(60)
         assert done["align"].status_code == 200, done["align"].text
         assert done["align"].json()["last"]["kind"] == "align"
+        assert done["align"].json()["aligned"] is True
         # The undo ran after it: it undid the alignment.
         assert done["undo"].status_code == 200, done["undo"].text
         assert done["undo"].json()["version"] > done["align"].json()["version"]
+        assert done["undo"].json()["aligned"] is False
         assert _poses(client) == poses
     host.close()
 

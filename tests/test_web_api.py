@@ -130,10 +130,12 @@ def test_state_document(client: TestClient, room: Scenario) -> None:
         "history",
         "lines",
         "loop_closures",
+        "aligned",
         "journal",
     }
     assert state["lines"] == []
     assert state["loop_closures"] == {"count": 0, "rejected": []}
+    assert state["aligned"] is False
     assert state["session"] == "room.hitl"
     assert state["name"] == room.map.name
     assert (state["num_poses"], state["num_points"]) == (499, room.map.num_points)

@@ -1,6 +1,8 @@
 """Aligning with the scans in a real browser: `hitl-slam serve` on a session of the generated room
 (a second's alignment), the "Align with scans" button busy and disabled while the server aligns,
-the map redrawn after, u back to the map before, Shift+A again from the keyboard; and on a session
+the map redrawn after with "aligned with scans" in the status bar, u back to the map before,
+Shift+A again from the keyboard; on the room with loop closures, the map's loop closures faded and
+their Reject / Reinstate button disabled (saying why) while aligned, until undo; and on a session
 whose guard refuses, the reason shown as a refused correction's is, the map unchanged. Skipped
 without a browser, except on CI.
 """
@@ -14,8 +16,10 @@ from typing import Any
 import pytest
 
 from hitl_slam.config import DEFAULT, Config
+from hitl_slam.map import Map
 from hitl_slam.session import Session
 from hitl_slam.sim import lost_poses_room
+from loop_support import map_with_loops
 from web_support import (
     Server,
     chromium,
@@ -30,6 +34,11 @@ from web_support import (
 # default guard refuses that, a guard allowing every step lets it through.
 PERMISSIVE = DEFAULT.replace(align_max_contradicted=1.0)
 BUTTON = "#btn-align"
+INDICATOR = "#st-aligned"
+LOOP_BUTTON = "#btn-loop-toggle"
+ALIGNED_TIP = (
+    "the map is aligned with its scans; undo the alignment to reject or reinstate loop closures"
+)
 
 
 @pytest.fixture(scope="module")
@@ -38,15 +47,21 @@ def browser() -> Iterator[Any]:
         yield b
 
 
-def _room_server(folder: Path, config: Config) -> Any:
+def _room_server(folder: Path, config: Config, m: Map | None = None) -> Any:
     path = folder / "room.hitl"
-    Session.new(lost_poses_room(0).map, path, config=config).close()
+    Session.new(lost_poses_room(0).map if m is None else m, path, config=config).close()
     return serve(folder, path.name)
 
 
 @pytest.fixture
 def aligning(tmp_path: Path) -> Iterator[Server]:
     with _room_server(tmp_path, PERMISSIVE) as server:
+        yield server
+
+
+@pytest.fixture
+def aligning_loops(tmp_path: Path) -> Iterator[Server]:
+    with _room_server(tmp_path, PERMISSIVE, map_with_loops()) as server:
         yield server
 
 
@@ -63,6 +78,8 @@ def test_align_button_aligns_then_undo_and_shift_a(browser: Any, aligning: Serve
     assert "undo returns to the map before" in (button.get_attribute("title") or "")
     before = aligning.poses_bytes()
     version = int(page.evaluate("window.hitl.version"))
+    assert page.evaluate("window.hitl.state.aligned") is False
+    assert page.locator(INDICATOR).is_hidden()
 
     button.click()
     # Busy while the server aligns: disabled, saying so.
@@ -83,17 +100,79 @@ def test_align_button_aligns_then_undo_and_shift_a(browser: Any, aligning: Serve
     assert state["last"]["kind"] == "align"
     assert aligning.poses_bytes() != before
     assert "align" in page.locator("#st-solve").text_content()
+    assert state["aligned"] is True
+    indicator = page.locator(INDICATOR)
+    assert indicator.is_visible()
+    assert indicator.text_content() == "aligned with scans"
     save_artifact(page, "align-after.png")
 
     page.keyboard.press("u")
     version = wait_version_above(page, version)
     assert aligning.poses_bytes() == before
+    assert page.evaluate("window.hitl.state.aligned") is False
+    assert indicator.is_hidden()
 
     page.keyboard.press("Shift+A")
     version = wait_version_above(page, version)
     page.wait_for_function("!window.hitl.busy")
     assert page.evaluate("window.hitl.state.last.kind") == "align"
     assert aligning.poses_bytes() != before
+    assert indicator.is_visible()
+    assert page.errors == []
+
+
+def test_while_aligned_the_maps_loop_closures_are_faded_and_cannot_be_toggled(
+    browser: Any, aligning_loops: Server
+) -> None:
+    page = open_page(browser, aligning_loops.url)
+    loops = page.evaluate("window.hitl.loopClosures()")
+    assert len(loops) == aligning_loops.state()["loop_closures"]["count"] > 0
+    assert not any(c["dimmed"] for c in loops)
+    toggle = page.locator(LOOP_BUTTON)
+    default_title = toggle.get_attribute("title") or ""
+    assert "Reject the selected loop closure" in default_title
+    page.keyboard.press("n")  # selects loop closure 0
+    assert page.evaluate("window.hitl.selectedLoop") == 0
+    assert toggle.is_enabled()
+    version = int(page.evaluate("window.hitl.version"))
+
+    page.keyboard.press("Shift+A")
+    version = wait_version_above(page, version)
+    page.wait_for_function("!window.hitl.busy")
+    assert page.evaluate("window.hitl.state.aligned") is True
+    assert page.locator(INDICATOR).is_visible()
+    assert all(c["dimmed"] for c in page.evaluate("window.hitl.loopClosures()"))
+    assert page.evaluate("window.hitl.selectedLoop") == 0
+    assert toggle.is_disabled()
+    assert toggle.get_attribute("title") == ALIGNED_TIP
+    assert "replaced (aligned)" in page.evaluate("window.hitl.loopStatus()")
+    save_artifact(page, "align-loops.png")
+
+    # x says why instead of asking the server (which would refuse): nothing changes.
+    aligned = aligning_loops.poses_bytes()
+    page.keyboard.press("x")
+    page.wait_for_function(f"window.hitl.message.text === {ALIGNED_TIP!r}")
+    assert not page.evaluate("window.hitl.busy")
+    state = aligning_loops.state()  # its version may have risen with the inconsistency
+    assert state["last"]["kind"] == "align"
+    assert state["aligned"] is True
+    assert state["loop_closures"]["rejected"] == page.evaluate(
+        "window.hitl.state.loop_closures.rejected"
+    )
+    assert aligning_loops.poses_bytes() == aligned
+
+    # Undo the alignment: everything is as before.
+    page.keyboard.press("u")
+    version = wait_version_above(page, version)
+    assert page.evaluate("window.hitl.state.aligned") is False
+    assert page.locator(INDICATOR).is_hidden()
+    assert not any(c["dimmed"] for c in page.evaluate("window.hitl.loopClosures()"))
+    assert toggle.is_enabled()
+    assert toggle.get_attribute("title") == default_title
+    assert "in the solve" in page.evaluate("window.hitl.loopStatus()")
+    page.keyboard.press("x")
+    version = wait_version_above(page, version)
+    assert 0 in aligning_loops.state()["loop_closures"]["rejected"]
     assert page.errors == []
 
 
@@ -114,5 +193,7 @@ def test_a_refused_alignment_shows_its_reason_and_changes_nothing(
     assert int(page.evaluate("window.hitl.version")) == version
     assert refusing.state()["version"] == version
     assert refusing.poses_bytes() == before
+    assert page.evaluate("window.hitl.state.aligned") is False
+    assert page.locator(INDICATOR).is_hidden()
     save_artifact(page, "align-refused.png")
     assert page.errors == []

@@ -68,6 +68,7 @@ class Snapshot:
     can_undo: bool
     can_redo: bool
     rejected_loops: tuple[int, ...]  # the loop closures left out of the solve, sorted
+    aligned: bool  # an alignment with the scans is in effect (its graph replaced the map's)
     last: dict[str, Any] | None
     inconsistency_m2: float | None
     journal_next: int
@@ -176,6 +177,7 @@ class SessionHost:
                 "count": self._loop_count,
                 "rejected": list(snap.rejected_loops),
             },
+            "aligned": snap.aligned,
             "journal": {
                 "loaded": len(self._steps),
                 "next": snap.journal_next,
@@ -294,7 +296,8 @@ class SessionHost:
         minute on a big map): the scans are matched again from the current poses, their graph
         replaces the map's factors and every correction in effect is solved again over it. The
         new State: its ``last`` (kind ``"align"``) says what the solve cost and carries the
-        alignment's figures. A step on the undo/redo stack like a correction.
+        alignment's figures, and ``aligned`` is true while the step is in effect (until it is
+        undone). A step on the undo/redo stack like a correction.
 
         Raises:
             AlignmentRefused: the aligned map contradicts the odometry at too many steps (an
@@ -550,6 +553,7 @@ class SessionHost:
             can_undo=session.can_undo,
             can_redo=session.can_redo,
             rejected_loops=tuple(sorted(session.rejected_loop_closures)),
+            aligned=session.aligned,
             last=last,
             inconsistency_m2=known,
             journal_next=journal_next,

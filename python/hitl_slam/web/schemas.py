@@ -193,6 +193,9 @@ class State(_Response):
     history: list[HistoryItem]
     lines: list[CorrectionLines]  # the corrections in effect, in order, with their solved lines
     loop_closures: LoopClosureState  # an addition to the contract (issue 14)
+    # An alignment with the scans is in effect: its graph replaced the map's factors, so the
+    # map's own loop closures are out of the solve and cannot be rejected or reinstated.
+    aligned: bool
     journal: JournalInfo
 
 

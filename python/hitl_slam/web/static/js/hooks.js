@@ -25,8 +25,9 @@
 //   appliedLines()   the applied corrections' lines as drawn: [{index, mode, a, b}], a and b
 //                    each [[x0, y0], [x1, y1]] in world metres (the server's State.lines)
 //   hintVisible()    whether the first-use hint (how to start a correction) shows
-//   loopClosures()   the loop closures as drawn: [{index, pair, weight, rejected, style, p0, p1}]
-//                    (style "trusted", "down-weighted", "untrusted" or "rejected"; p0, p1 the
+//   loopClosures()   the loop closures as drawn: [{index, pair, weight, rejected, style, dimmed,
+//                    p0, p1}] (style "trusted", "down-weighted", "untrusted" or "rejected";
+//                    dimmed while the map is aligned with its scans (State.aligned); p0, p1 the
 //                    world positions of the two poses on screen); [] for a map without any
 //   selectedLoop     index of the selected loop closure, or null
 //   loopsVisible     whether the loop closures are drawn (key c)

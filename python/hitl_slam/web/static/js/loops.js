@@ -1,14 +1,21 @@
 // The loop closures of a map the front end built: each drawn as a line between the two poses it
 // joins (placed by the poses on screen, so it moves with the map), coloured by the front end's
 // trust in it (its robust weight): green trusted, amber down-weighted, orange one the front end
-// rejected but the person reinstated, red dashed rejected (left out of the solve). Picking the
-// one nearest a click. Pure functions over plain data.
+// rejected but the person reinstated, red dashed rejected (left out of the solve); all of them
+// faded while the map is aligned with its scans (the alignment's own loop closures replaced the
+// map's, which are then out of the solve). Picking the one nearest a click. Pure functions over
+// plain data.
 
 const TRUSTED = 0.9; // weight from which a loop closure counts as trusted
 const KEPT = 0.5; // below it the front end rejected it
 const WIDTH = 1.5; // [CSS px]
 const SELECTED_WIDTH = 4;
 const PICK_PX = 10; // a click selects the nearest loop closure within this many pixels
+const DIMMED = 0.3; // the opacity of the map's loop closures, relative, while it is aligned
+
+/** Why the map's loop closures cannot be rejected or reinstated while it is aligned. */
+export const ALIGNED_LOOPS =
+  "the map is aligned with its scans; undo the alignment to reject or reinstate loop closures";
 
 export const LOOP_COLOURS = {
   trusted: [0x2b / 255, 0x8a / 255, 0x3e / 255, 0.85],
@@ -31,14 +38,16 @@ const COLOUR_OF = {
   "down-weighted": LOOP_COLOURS.downWeighted,
   untrusted: LOOP_COLOURS.untrusted,
   rejected: LOOP_COLOURS.rejected,
+  selected: LOOP_COLOURS.selected,
 };
 
 /**
- * Every loop closure as drawn: [{index, pair, weight, rejected, style, p0, p1}], the ends at the
- * poses on screen (`poses`, N*3). `loops` is the /api/loop_closures answer, `rejected` a Set of
- * indices.
+ * Every loop closure as drawn: [{index, pair, weight, rejected, style, dimmed, p0, p1}], the ends
+ * at the poses on screen (`poses`, N*3). `loops` is the /api/loop_closures answer, `rejected` a
+ * Set of indices, `aligned` the State's (the map's loop closures are then out of the solve, drawn
+ * faded: `dimmed`).
  */
-export function placeLoops(loops, rejected, poses) {
+export function placeLoops(loops, rejected, poses, aligned = false) {
   const out = [];
   if (!loops || !poses) return out;
   const n = poses.length / 3;
@@ -52,11 +61,18 @@ export function placeLoops(loops, rejected, poses) {
       weight,
       rejected: off,
       style: loopStyle(weight, off),
+      dimmed: aligned,
       p0: [poses[3 * i], poses[3 * i + 1]],
       p1: [poses[3 * j], poses[3 * j + 1]],
     });
   });
   return out;
+}
+
+/** The colour of a loop closure drawn in `style`, faded when `dimmed`. */
+function colourOf(style, dimmed) {
+  const [r, g, b, a] = COLOUR_OF[style];
+  return dimmed ? [r, g, b, a * DIMMED] : [r, g, b, a];
 }
 
 /** The overlay lines of `placed` (placeLoops), the selected one wider and outlined in black. */
@@ -68,13 +84,14 @@ export function loopLines(placed, selected) {
       chosen = c;
       continue;
     }
-    lines.push({ p0: c.p0, p1: c.p1, colour: COLOUR_OF[c.style], width: WIDTH, dashed: c.rejected });
+    lines.push({ p0: c.p0, p1: c.p1, colour: colourOf(c.style, c.dimmed), width: WIDTH, dashed: c.rejected });
   }
   if (chosen) {
     // Drawn last (on top): a dark band with the loop closure's own colour inside.
-    const { p0, p1 } = chosen;
-    lines.push({ p0, p1, colour: LOOP_COLOURS.selected, width: SELECTED_WIDTH + 2, dashed: false });
-    lines.push({ p0, p1, colour: COLOUR_OF[chosen.style], width: SELECTED_WIDTH, dashed: chosen.rejected });
+    const { p0, p1, dimmed } = chosen;
+    const band = colourOf("selected", dimmed);
+    lines.push({ p0, p1, colour: band, width: SELECTED_WIDTH + 2, dashed: false });
+    lines.push({ p0, p1, colour: colourOf(chosen.style, dimmed), width: SELECTED_WIDTH, dashed: chosen.rejected });
   }
   return lines;
 }

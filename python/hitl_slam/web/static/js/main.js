@@ -8,7 +8,7 @@ import { Camera } from "./camera.js";
 import { PendingPair, sigmaForScale } from "./correction.js";
 import { installHooks } from "./hooks.js";
 import { attachInput } from "./interaction.js";
-import { loopLines, pickLoop, placeLoops } from "./loops.js";
+import { ALIGNED_LOOPS, loopLines, pickLoop, placeLoops } from "./loops.js";
 import { overlay } from "./overlay.js";
 import { Ui } from "./ui.js";
 import { MapView } from "./view.js";
@@ -309,10 +309,19 @@ class App {
     return new Set(lc ? lc.rejected : []);
   }
 
+  /**
+   * Whether the latest state says the map is aligned with its scans: the alignment's own loop
+   * closures then replaced the map's, which are drawn faded and cannot be rejected or reinstated
+   * until the alignment is undone.
+   */
+  aligned() {
+    return Boolean(this.state && this.state.aligned);
+  }
+
   /** Places the loop closures on the poses on screen with the latest state's rejections. */
   refreshLoops() {
     if (!this.loops) return;
-    this.placedLoops = placeLoops(this.loops, this.rejectedLoops(), this.poses);
+    this.placedLoops = placeLoops(this.loops, this.rejectedLoops(), this.poses, this.aligned());
     this.ui.setLoops(this.loopSummary());
     this.refreshLines();
   }
@@ -322,15 +331,19 @@ class App {
     if (!this.loops) return null;
     const count = this.loops.pairs.length;
     const rejected = this.rejectedLoops().size;
-    let text = `loop closures ${count - rejected}/${count} in the solve`;
+    const aligned = this.aligned();
+    let text = aligned
+      ? `loop closures: the map's ${count} replaced (aligned)`
+      : `loop closures ${count - rejected}/${count} in the solve`;
     if (!this.loopsVisible) text += " (hidden: c)";
     const k = this.selectedLoop;
     if (k !== null && k < count) {
       const [i, j] = this.loops.pairs[k];
-      const state = this.rejectedLoops().has(k) ? "rejected" : "in the solve";
+      let state = this.rejectedLoops().has(k) ? "rejected" : "in the solve";
+      if (aligned) state = "replaced (aligned)";
       text = `loop closure ${k}: poses ${i}\u2013${j}, trust ${this.loops.weight[k].toFixed(2)}, ${state} \u00b7 ${text}`;
     }
-    return { text, selected: k, rejected: k !== null && this.rejectedLoops().has(k) };
+    return { text, selected: k, rejected: k !== null && this.rejectedLoops().has(k), aligned };
   }
 
   /** A click at screen (x, y): selects the loop closure under it, or clears the selection. */
@@ -344,7 +357,8 @@ class App {
     this.refreshLoops();
     if (k !== null) {
       const s = this.loopSummary();
-      this.ui.show(`${s.text.split(" \u00b7 ")[0]}; x ${s.rejected ? "reinstates" : "rejects"} it`, "info");
+      const then = s.aligned ? ALIGNED_LOOPS : `x ${s.rejected ? "reinstates" : "rejects"} it`;
+      this.ui.show(`${s.text.split(" \u00b7 ")[0]}; ${then}`, "info");
     }
   }
 
@@ -382,6 +396,10 @@ class App {
     const k = this.selectedLoop;
     if (k === null || !this.loops) {
       this.hint("select a loop closure first: click its line, or n / N");
+      return Promise.resolve();
+    }
+    if (this.aligned()) {
+      this.hint(ALIGNED_LOOPS);
       return Promise.resolve();
     }
     const reject = !this.rejectedLoops().has(k);

@@ -2,6 +2,8 @@
 // the mode buttons' selection, the help panel and the scale bar. Only reads and writes the DOM;
 // the app decides what to show.
 
+import { ALIGNED_LOOPS } from "./loops.js";
+
 const $ = (id) => document.getElementById(id);
 
 function fmtMs(ms) {
@@ -76,9 +78,14 @@ export class Ui {
     $("btn-journal").disabled = j.next >= j.loaded;
     $("st-journal").hidden = !hasJournal;
     $("st-journal").textContent = `journal ${j.next}/${j.loaded}`;
+    $("st-aligned").hidden = !s.aligned;
   }
 
-  /** The loop closures' part of the status bar and the buttons (null: the map has none). */
+  /**
+   * The loop closures' part of the status bar and the buttons (null: the map has none). While
+   * the map is aligned with its scans (`summary.aligned`) the Reject / Reinstate button is
+   * disabled, its tooltip saying why.
+   */
   setLoops(summary) {
     const has = summary !== null;
     $("st-loops").hidden = !has;
@@ -87,7 +94,9 @@ export class Ui {
     if (!has) return;
     $("st-loops").textContent = summary.text;
     const button = $("btn-loop-toggle");
-    button.disabled = summary.selected === null;
+    if (button.dataset.title === undefined) button.dataset.title = button.title;
+    button.disabled = summary.selected === null || summary.aligned;
+    button.title = summary.aligned ? ALIGNED_LOOPS : button.dataset.title;
     button.textContent = summary.selected !== null && summary.rejected ? "Reinstate" : "Reject";
   }
 
