@@ -225,3 +225,44 @@ def test_a_malformed_graph_is_damage_even_with_a_valid_checksum(tmp_path: Path) 
     assert (
         state.feed(Event(8, 0.0, EventKind.ALIGN, {**base, "graph": good}, m.poses.copy())) is None
     )
+
+
+def test_correct_align_refused_writes_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from hitl_slam.cli import main
+    from hitl_slam.io.export import export
+
+    base = lost_poses_room(2)
+    scenario = damaged(base, jump(base.truth, np.random.default_rng(2)), 2)
+    map_file = tmp_path / "room.covars"
+    export(scenario.map, scenario.map.poses, map_file)
+    empty = tmp_path / "none.jsonl"
+    empty.write_text("")
+    out, hitl = tmp_path / "out.g2o", tmp_path / "out.hitl"
+    args = ["correct", str(map_file), "--corrections", str(empty), "--align", "-o", str(out)]
+    assert main([*args, "--session", str(hitl)]) == 2
+    err = capsys.readouterr().err
+    assert "--align: the scans disagree with the odometry" in err
+    assert "nothing was written" in err
+    assert not out.exists()
+    assert not hitl.exists()
+
+
+@needs_logs
+def test_correct_align_on_a_real_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from hitl_slam.cli import main
+    from hitl_slam.io.maps import load_map
+
+    empty = tmp_path / "none.jsonl"
+    empty.write_text("")
+    out, hitl = tmp_path / "aligned.covars", tmp_path / "aligned.hitl"
+    log = str(LASER / "orebro-corrected.log.gz")
+    args = ["correct", log, "--corrections", str(empty), "--align", "-o", str(out)]
+    assert main([*args, "--session", str(hitl)]) == 0
+    printed = capsys.readouterr().out
+    assert "aligned with the scans:" in printed
+    assert printed.splitlines()[-1].startswith("0 corrections applied, then aligned with the scans")
+    with Session.open(hitl) as s:
+        assert s.aligned
+        assert np.allclose(load_map(out).poses, s.poses, atol=1e-6)
