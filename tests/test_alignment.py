@@ -251,14 +251,21 @@ def test_correct_align_refused_writes_nothing(
 
 @needs_logs
 def test_correct_align_on_a_real_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A real log bent by slow heading drift: aligning alone (no drawing) takes most of it out."""
     from hitl_slam.cli import main
+    from hitl_slam.full_evaluation import _base_scenario
+    from hitl_slam.io.export import export
     from hitl_slam.io.maps import load_map
+    from hitl_slam.sim.fault_models import drift
 
+    base = _base_scenario("Orebro", 1)
+    scenario = damaged(base, drift(base.truth, np.random.default_rng(1)), 1)  # type: ignore[attr-defined]
+    map_file = tmp_path / "bent.covars"
+    export(scenario.map, scenario.map.poses, map_file)
     empty = tmp_path / "none.jsonl"
     empty.write_text("")
     out, hitl = tmp_path / "aligned.covars", tmp_path / "aligned.hitl"
-    log = str(LASER / "orebro-corrected.log.gz")
-    args = ["correct", log, "--corrections", str(empty), "--align", "-o", str(out)]
+    args = ["correct", str(map_file), "--corrections", str(empty), "--align", "-o", str(out)]
     assert main([*args, "--session", str(hitl)]) == 0
     printed = capsys.readouterr().out
     assert "aligned with the scans:" in printed
@@ -266,3 +273,5 @@ def test_correct_align_on_a_real_log(tmp_path: Path, capsys: pytest.CaptureFixtu
     with Session.open(hitl) as s:
         assert s.aligned
         assert np.allclose(load_map(out).poses, s.poses, atol=1e-6)
+        before = ate(scenario.map.poses, scenario.truth)
+        assert ate(s.poses, scenario.truth) < 0.5 * before

@@ -8,10 +8,17 @@ passes the corrections brought together. Its graph (the matched steps and the lo
 kept) then replaces the map's factors, and every correction in effect is solved again over it.
 
 Scan matching can be wrong where the scans say little (a featureless corridor, a sparse or
-simulated scanner), and then it contradicts the robot's own odometry at many steps at once. The
-guard measures that without the truth: the share of the input map's odometry steps the aligned
-poses contradict beyond the 99.9% chi2 bound under the odometry's own information. Above
-``Config.align_max_contradicted`` the alignment is refused with the figures and nothing changes.
+simulated scanner), and then it contradicts the robot's own odometry at many steps at once. Three
+guards judge the result without the truth, each refusing with its figures (nothing changes):
+
+- loop closures: the front end must have kept at least ``Config.align_min_loop_closures``
+  between the passes; without one the scans only re-measure the chain, which drifts;
+- odometry: the share of the input map's odometry steps the aligned poses contradict beyond the
+  99.9% chi2 bound under the odometry's own information must be at most
+  ``Config.align_max_contradicted``;
+- consistency (``Config.align_consistency_guard``): the aligned map's inconsistency (§6) must be
+  lower than the map's before it (the point of aligning with the scans; the odometry guard keeps
+  a map that flew apart, whose overlaps and so inconsistency shrink, from passing this one).
 """
 
 from __future__ import annotations
@@ -60,6 +67,7 @@ class Alignment:
     loop_closures_rejected: int
     steps: int  # odometry steps of the input map checked
     contradicted: int  # of them, contradicted by the aligned poses
+    inconsistency: tuple[float, float]  # [m^2] before and after
     iterations: int
     initial_chi2: float
     final_chi2: float
@@ -144,9 +152,21 @@ def align(
             f"needs scans of at least {_MIN_POINTS_PER_SCAN} points on average (a pose graph "
             "without scans cannot be aligned)"
         )
+    from hitl_slam.metrics import inconsistency
+
     t0 = time.perf_counter()
     seeded = dataclasses.replace(map, poses=np.ascontiguousarray(poses, dtype=np.float64))
     front = slam(seeded, progress=progress)
+    kept = int(front.loop_closures.accepted.sum())
+    rejected = int(front.loop_closures.pairs.shape[0]) - kept
+    if kept < config.align_min_loop_closures:
+        raise AlignmentRefused(
+            f"the scans found {kept} loop closure{'' if kept == 1 else 's'} between the passes "
+            f"({rejected} rejected), fewer than the {config.align_min_loop_closures} needed "
+            "(config align_min_loop_closures); without them aligning only re-measures the "
+            "chain, which drifts. The map was not changed. Bring the copies of the walls "
+            "closer by drawing first, or there is no place the robot saw twice"
+        )
     graph = front.accepted_map()
     start = graph.poses
     solved, lines, report = solve_all(graph, active, aligned_config(config), start=start)
@@ -156,8 +176,6 @@ def align(
 
         raise SolverError("the aligned solve returned malformed poses; the map was not changed")
     k, steps = contradicted(map, solved)
-    kept = int(front.loop_closures.accepted.sum())
-    rejected = int(front.loop_closures.pairs.shape[0]) - kept
     if steps and k > config.align_max_contradicted * steps:
         raise AlignmentRefused(
             f"the scans disagree with the odometry: the aligned map contradicts {k} of the "
@@ -166,6 +184,15 @@ def align(
             "(config align_max_contradicted); the map was not changed. Scan matching is "
             "unreliable on these scans here (few features, or a fault not yet corrected): "
             "correct what is left by drawing"
+        )
+    before = inconsistency(map, poses, config).total_m2
+    after = inconsistency(map, solved, config).total_m2
+    if config.align_consistency_guard and not after < before:
+        raise AlignmentRefused(
+            f"the aligned map is no more consistent with its scans than the map is: its "
+            f"inconsistency would go from {before:.1f} to {after:.1f} m^2; the map was not "
+            "changed. The scans disagree with the corrections here (a statement on the wrong "
+            "copy?): look at the last corrections, or correct what is left by drawing"
         )
     return Alignment(
         edges=graph.edges,
@@ -177,6 +204,7 @@ def align(
         loop_closures_rejected=rejected,
         steps=steps,
         contradicted=k,
+        inconsistency=(float(before), float(after)),
         iterations=int(report.iterations),
         initial_chi2=float(report.initial_chi2),
         final_chi2=float(report.final_chi2),

@@ -108,6 +108,10 @@ class Config:
     # alignment with the scans (docs/ALGORITHM.md §I.11): refused when the aligned poses
     # contradict more than this share of the odometry steps beyond their 99.9% bound
     align_max_contradicted: float = 0.05
+    # and when the front end kept fewer loop closures than this between the passes
+    align_min_loop_closures: int = 1
+    # and when the aligned map is not less inconsistent (§6) than the map before it (False: off)
+    align_consistency_guard: bool = True
     # and every solve over an aligned graph (the alignment's own, and each correction while it
     # is in effect) gives each correction's relation dynamic covariance scaling with this Phi
     # instead of relation_dcs: the scans are a second witness, so a statement they contradict

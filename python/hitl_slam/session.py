@@ -231,6 +231,7 @@ class AlignStep:
     loop_closures_rejected: int
     steps: int  # odometry steps of the input map checked by the guard
     contradicted: int  # of them, contradicted by the aligned poses beyond their 99.9% bound
+    inconsistency: tuple[float, float]  # [m^2] of the map before and after it
 
 
 @dataclass(eq=False)
@@ -245,11 +246,22 @@ class _Align:
     measurements: NDArray[np.float64]
     information: NDArray[np.float64]
     counts: tuple[int, int, int, int]  # loop closures kept, rejected; steps, contradicted
+    inconsistency: tuple[float, float]
     graph: Map | None = None  # the aligned map, made on first use
 
     def snapshot(self) -> AlignStep:
         kept, rejected, steps, bad = self.counts
-        return AlignStep(self.seq, self.time, self.status, self.stats, kept, rejected, steps, bad)
+        return AlignStep(
+            self.seq,
+            self.time,
+            self.status,
+            self.stats,
+            kept,
+            rejected,
+            steps,
+            bad,
+            self.inconsistency,
+        )
 
     def map_of(self, map: Map) -> Map:
         if self.graph is None:
@@ -424,6 +436,10 @@ class _State:
         )
         if not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in counts):
             raise ValueError(f"its counts are not whole numbers: {counts!r}")
+        inc = payload.get("inconsistency", [math.nan, math.nan])
+        if not (isinstance(inc, list) and len(inc) == 2):
+            raise ValueError(f"its inconsistency is not [before, after]: {inc!r}")
+        inc_pair = (float(inc[0]), float(inc[1]))
         step = _Align(
             seq=event.seq,
             time=event.time,
@@ -435,6 +451,7 @@ class _State:
             measurements=z,
             information=info,
             counts=counts,  # type: ignore[arg-type]
+            inconsistency=inc_pair,
         )
         self._discard_redo()
         self.applied.append(step)
@@ -1169,6 +1186,7 @@ class Session:
                 "loop_closures_rejected": done.loop_closures_rejected,
                 "steps": done.steps,
                 "contradicted": done.contradicted,
+                "inconsistency": list(done.inconsistency),
             }
             self._record(EventKind.ALIGN, payload, after)
             with self._guard:

@@ -104,7 +104,8 @@ def last_change(
 def alignment(step: AlignStep) -> dict[str, Any]:
     """The figures of an alignment with the scans, for its ``last``: the loop closures the
     front end kept and rejected, the input map's odometry steps the guard checked and how many
-    of them the aligned map contradicts, and how far the poses moved."""
+    of them the aligned map contradicts, how far the poses moved, and the map's inconsistency
+    [m^2] before and after."""
     return {
         "loop_closures": step.loop_closures,
         "loop_closures_rejected": step.loop_closures_rejected,
@@ -112,4 +113,5 @@ def alignment(step: AlignStep) -> dict[str, Any]:
         "contradicted": step.contradicted,
         "poses_moved": step.stats.poses_moved,
         "max_move_m": step.stats.max_move_m,
+        "inconsistency": list(step.inconsistency),
     }

@@ -116,6 +116,7 @@ class AlignmentFigures(_Response):
     contradicted: int  # of them, contradicted by the aligned poses beyond their 99.9% bound
     poses_moved: int  # poses that moved (more than 1 mm or 1 mrad)
     max_move_m: float  # [m] the largest change of a pose position
+    inconsistency: tuple[float, float]  # [m^2] of the map before and after
 
 
 class Last(_Response):
