@@ -116,7 +116,9 @@ scan-matching front end runs again from the corrected poses, its matched steps a
 replace the map's factors, and every correction is solved again over them. The person's
 statements bring copies of a wall together; the scans then close the last centimetres. Where the
 aligned map contradicts the robot's odometry at more than 5% of the steps (scan matching gone
-wrong: few features, a fault not yet corrected) it is refused: exit code 2, nothing written.
+wrong: few features, a fault not yet corrected), where the scans found no loop closure between
+the passes, or where the aligned map is no more consistent than the map, it is refused with the
+figures: exit code 2, nothing written.
 
 OUT's extension picks its format (.covars, .clf CARMEN log, .g2o, .txt TUM, .pgm + .yaml
 occupancy grid, .png or .svg figure). --session also keeps the whole run as a session file (a new
@@ -1187,7 +1189,8 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="after the corrections, align the map with its scans: match them again from the "
         "corrected poses and solve every correction over that graph (refused, and nothing "
-        "written, where it contradicts the odometry)",
+        "written, where it contradicts the odometry, finds no loop closure or is no more "
+        "consistent)",
     )
     _add_force(correct)
     correct.add_argument("-q", "--quiet", action="store_true", help="only the summary line")
