@@ -400,6 +400,21 @@ def _alignment_worse(r: Run) -> bool:
     return r.ate[1] > WORSE * ate0 or r.angle[1] > WORSE * ang0
 
 
+def _refusals(runs: Sequence[Run]) -> dict[str, int]:
+    """How many alignments each guard refused."""
+    kinds = {
+        "loop closures": "with too few loop closures",
+        "disagree with the odometry": "contradicting the odometry",
+        "no more consistent": "no more consistent",
+    }
+    out: dict[str, int] = {}
+    for r in runs:
+        if r.alignment.startswith("refused"):
+            kind = next((v for k, v in kinds.items() if k in r.alignment), "other")
+            out[kind] = out.get(kind, 0) + 1
+    return out
+
+
 def _alignment_lines(runs: Sequence[Run]) -> list[str]:
     tried = [r for r in runs if r.alignment]
     if not tried:
@@ -409,10 +424,12 @@ def _alignment_lines(runs: Sequence[Run]) -> list[str]:
     lines = [
         "## Alignment with the scans",
         "",
-        f"Applied in {len(applied)} of {len(tried)} runs (refused in the others: the aligned map "
-        "contradicted the odometry at too many steps); it raised ATE or the mean wall-angle "
-        f"error by more than 5% in {len(worse)} of the {len(applied)}. Before: after the last "
-        "drawing; after: after the alignment (the runs table's 'out').",
+        f"Applied in {len(applied)} of {len(tried)} runs; refused in the others by a guard "
+        "(docs/ALGORITHM.md §I.11), the run's section below says which: "
+        + ", ".join(f"{v} {k}" for k, v in sorted(_refusals(tried).items()))
+        + f". It raised ATE or the mean wall-angle error by more than 5% in {len(worse)} of the "
+        f"{len(applied)}. Before: after the last drawing; after: after the alignment (the runs "
+        "table's 'out').",
         "",
         "| map | fault | noise (cm) | alignment | ATE (m) | angle (deg) | spacing (m) "
         "| inconsistency (m^2) |",
