@@ -33,12 +33,10 @@ ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_RUNS = (
     "Seattle/jump/0.05",
     "Intel lab/drift/0.15",
-    "Freiburg 079/jump/0.05",
+    "Orebro/jump/0.05",
+    "Edmonton/jump/0.05",
     "Belgioioso/bend/0.15",
-    "Edmonton/laps/0.05",
-    "Orebro/bend/0.05",
     "lost poses room/jump/0.15",
-    "parallel corridors/laps/0.05",
     "campus/drift/0.05",
 )
 

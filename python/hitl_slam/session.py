@@ -655,6 +655,22 @@ def _stats(
     )
 
 
+def _solve_stats(
+    before: NDArray[np.float64], after: NDArray[np.float64], solve: Any, elapsed: float
+) -> CorrectionStats:
+    """The stats of a re-solve (a loop closure step's, an alignment's): ``solve`` has its
+    ``iterations``, ``initial_chi2`` and ``final_chi2``."""
+    moved, largest = moved_poses(before, after)
+    return CorrectionStats(
+        iterations=int(solve.iterations),
+        initial_chi2=float(solve.initial_chi2),
+        final_chi2=float(solve.final_chi2),
+        time_s=elapsed,
+        poses_moved=moved,
+        max_move_m=largest,
+    )
+
+
 def _checked_poses(poses: Any, shape: tuple[int, ...]) -> NDArray[np.float64]:
     out = np.array(poses, dtype=np.float64, order="C")
     if out.shape != shape:
@@ -1115,15 +1131,7 @@ class Session:
             solved = np.array(lines, dtype=np.float64).reshape(-1, 2)
             if solved.shape != (count, 2) or not np.isfinite(solved).all():
                 raise SolverError("the re-solve returned malformed lines; the map was not changed")
-            moved, largest = moved_poses(before, after)
-            stats = CorrectionStats(
-                iterations=int(report.iterations),
-                initial_chi2=float(report.initial_chi2),
-                final_chi2=float(report.final_chi2),
-                time_s=elapsed,
-                poses_moved=moved,
-                max_move_m=largest,
-            )
+            stats = _solve_stats(before, after, report, elapsed)
             payload = {
                 "loop": loop,
                 "edge": int(loops.edges[loop]),
@@ -1164,15 +1172,7 @@ class Session:
             solved = np.array(done.lines, dtype=np.float64).reshape(-1, 2)
             if solved.shape != (2 * len(active), 2) or not np.isfinite(solved).all():
                 raise SolverError("the aligned solve returned malformed lines; nothing changed")
-            moved, largest = moved_poses(before, after)
-            stats = CorrectionStats(
-                iterations=done.iterations,
-                initial_chi2=done.initial_chi2,
-                final_chi2=done.final_chi2,
-                time_s=elapsed,
-                poses_moved=moved,
-                max_move_m=largest,
-            )
+            stats = _solve_stats(before, after, done, elapsed)
             m = done.edges.shape[0]
             payload = {
                 "graph": {
