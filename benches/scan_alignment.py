@@ -128,8 +128,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             "scan-matching front end run again from it, alone; `aligned`: `Session.align` (that "
             "graph with every correction in effect), or `aligned (refused)` where its guard "
             "refused (the map stays as corrected). The last column: the share of the damaged "
-            "map's odometry steps that the poses contradict beyond the 99.9% chi2 bound (the "
-            "guard refuses above 5%).",
+            "map's odometry steps that the poses contradict beyond the 99.9% chi2 bound (that "
+            "guard refuses above 5%; the others refuse without a loop closure kept, or without "
+            "a fall in inconsistency).",
             "",
             *lines,
             "",
