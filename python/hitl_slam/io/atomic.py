@@ -70,12 +70,16 @@ def _process_start() -> float:
         with open("/proc/self/stat", "rb") as f:
             fields = f.read().rsplit(b")", 1)[1].split()
         ticks = int(fields[19])  # field 22 (starttime), counted after "pid (comm)"
-        with open("/proc/stat", "rb") as f:
-            boot = next(int(line.split()[1]) for line in f if line.startswith(b"btime "))
-        started = boot + ticks / os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError, StopIteration):
+        with open("/proc/uptime", "rb") as f:
+            uptime = float(f.read().split()[0])
+        # The process's age on the boot clock, taken from the wall clock's now: a wall clock
+        # stepped since boot (NTP, a resumed virtual machine) does not move it, as adding the
+        # age to /proc/stat's btime (the wall clock at boot) would.
+        started = now - (uptime - ticks / os.sysconf("SC_CLK_TCK"))
+    except (OSError, ValueError, IndexError):
         return now
-    # btime is whole seconds: round down a further second so "older" stays conservative.
+    # Ticks and the two reads are not one instant: round down a further second so "older"
+    # stays conservative.
     return min(now, started - 1.0)
 
 
