@@ -1154,8 +1154,9 @@ class Session:
 
         Raises:
             InputError: the map has no scans to match.
-            AlignmentRefused: the aligned map contradicts the robot's odometry at too many steps
-                (an InputError, with the figures); nothing changed.
+            AlignmentRefused: a guard refused it (an InputError, with the figures): the front
+                end kept too few loop closures, the aligned map contradicts the robot's odometry
+                at too many steps, or it is no more consistent; nothing changed.
             SolverError: the solve failed; nothing changed and nothing was journaled.
         """
         from hitl_slam.alignment import align
