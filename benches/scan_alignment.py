@@ -55,6 +55,9 @@ def run_one(spec: str) -> dict[str, Any]:
         m, truth = scenario.map, scenario.truth
         first = inconsistency(m, m.poses, DEFAULT)
 
+        def share(k: int, n: int) -> float:
+            return k / max(n, 1)
+
         def score(name: str, poses: np.ndarray) -> None:
             e = scenario.errors(poses)
             out[name] = {
@@ -62,7 +65,7 @@ def run_one(spec: str) -> dict[str, Any]:
                 "angle": float(np.nanmean(e.angular)),
                 "spacing": float(np.nanmean(e.translational)),
                 "inc": float(inconsistency(m, poses, DEFAULT, like=first).total_m2),
-                "contradicted": contradicted(m, poses)[0] / max(contradicted(m, poses)[1], 1),
+                "contradicted": share(*contradicted(m, poses)),
             }
 
         corrected = np.array(session.poses)

@@ -227,21 +227,27 @@ def test_a_malformed_graph_is_damage_even_with_a_valid_checksum(tmp_path: Path) 
     )
 
 
-def test_correct_align_refused_writes_nothing(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def _correct_align(m: Map, folder: Path, out: Path, hitl: Path) -> int:
+    """`hitl-slam correct MAP --corrections (none) --align -o OUT --session HITL` on ``m``
+    written as a .covars in ``folder``: the exit code."""
     from hitl_slam.cli import main
     from hitl_slam.io.export import export
 
+    map_file = folder / "input.covars"
+    export(m, m.poses, map_file)
+    empty = folder / "none.jsonl"
+    empty.write_text("")
+    args = ["correct", str(map_file), "--corrections", str(empty), "--align", "-o", str(out)]
+    return main([*args, "--session", str(hitl)])
+
+
+def test_correct_align_refused_writes_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     base = lost_poses_room(2)
     scenario = damaged(base, jump(base.truth, np.random.default_rng(2)), 2)
-    map_file = tmp_path / "room.covars"
-    export(scenario.map, scenario.map.poses, map_file)
-    empty = tmp_path / "none.jsonl"
-    empty.write_text("")
     out, hitl = tmp_path / "out.g2o", tmp_path / "out.hitl"
-    args = ["correct", str(map_file), "--corrections", str(empty), "--align", "-o", str(out)]
-    assert main([*args, "--session", str(hitl)]) == 2
+    assert _correct_align(scenario.map, tmp_path, out, hitl) == 2
     err = capsys.readouterr().err
     assert "--align: the scans disagree with the odometry" in err
     assert "nothing was written" in err
@@ -252,21 +258,14 @@ def test_correct_align_refused_writes_nothing(
 @needs_logs
 def test_correct_align_on_a_real_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A real log bent by slow heading drift: aligning alone (no drawing) takes most of it out."""
-    from hitl_slam.cli import main
     from hitl_slam.full_evaluation import _base_scenario
-    from hitl_slam.io.export import export
     from hitl_slam.io.maps import load_map
     from hitl_slam.sim.fault_models import drift
 
     base = _base_scenario("Orebro", 1)
     scenario = damaged(base, drift(base.truth, np.random.default_rng(1)), 1)  # type: ignore[attr-defined]
-    map_file = tmp_path / "bent.covars"
-    export(scenario.map, scenario.map.poses, map_file)
-    empty = tmp_path / "none.jsonl"
-    empty.write_text("")
     out, hitl = tmp_path / "aligned.covars", tmp_path / "aligned.hitl"
-    args = ["correct", str(map_file), "--corrections", str(empty), "--align", "-o", str(out)]
-    assert main([*args, "--session", str(hitl)]) == 0
+    assert _correct_align(scenario.map, tmp_path, out, hitl) == 0
     printed = capsys.readouterr().out
     assert "aligned with the scans:" in printed
     assert printed.splitlines()[-1].startswith("0 corrections applied, then aligned with the scans")

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import Interpretation
-from hitl_slam.errors import InputError
+from hitl_slam.errors import InputError, SolverError
 from hitl_slam.map import InformationSource, Map
 
 __all__ = ["CHI2_3_999", "Alignment", "AlignmentRefused", "align", "aligned_map", "contradicted"]
@@ -172,8 +172,6 @@ def align(
     solved, lines, report = solve_all(graph, active, aligned_config(config), start=start)
     solved = np.asarray(solved, dtype=np.float64)
     if solved.shape != (n, 3) or not np.isfinite(solved).all():
-        from hitl_slam.errors import SolverError
-
         raise SolverError("the aligned solve returned malformed poses; the map was not changed")
     k, steps = contradicted(map, solved)
     if steps and k > config.align_max_contradicted * steps:

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from hitl_slam.corrections import DrawnCorrection, Interpretation
 from hitl_slam.corrections_file import Apply, Step, Undo
 from hitl_slam.errors import CorrectionRejected, HitlSlamError, InputError, SolverError
-from hitl_slam.session import HistoryEntry, Session, StepRefused
+from hitl_slam.session import CorrectionStats, HistoryEntry, Session, StepRefused
 from hitl_slam.web import documents, folder
 from hitl_slam.web.drawing import MapDrawing
 from hitl_slam.web.folder import SAVE_FORMATS, OutsideFolder
@@ -281,15 +281,7 @@ class SessionHost:
                 step = self._session.set_loop_closure(index, rejected)
             except StepRefused as exc:
                 raise NothingToDo(str(exc)) from None
-            stats = step.stats
-            last = documents.last_change(
-                "loop_closure",
-                1e3 * (time.perf_counter() - t0),
-                cost=stats.final_chi2,
-                initial_cost=stats.initial_chi2,
-                iterations=stats.iterations,
-            )
-            return self.state(self._publish(last))
+            return self._resolved("loop_closure", t0, step.stats)
 
     def align(self) -> dict[str, Any]:
         """Align the map with its scans (serialized with every other change; seconds to a
@@ -300,8 +292,9 @@ class SessionHost:
         undone). A step on the undo/redo stack like a correction.
 
         Raises:
-            AlignmentRefused: the aligned map contradicts the odometry at too many steps (an
-                InputError, with the figures); nothing changed.
+            AlignmentRefused: a guard refused it (too few loop closures, too many odometry
+                steps contradicted, or no less inconsistent; an InputError, with the figures);
+                nothing changed.
             InputError: the map has no scans to match.
             SolverError: the solve failed; nothing changed.
         """
@@ -309,16 +302,26 @@ class SessionHost:
             self._check_open()
             t0 = time.perf_counter()
             step = self._session.align()
-            stats = step.stats
-            last = documents.last_change(
-                "align",
-                1e3 * (time.perf_counter() - t0),
-                cost=stats.final_chi2,
-                initial_cost=stats.initial_chi2,
-                iterations=stats.iterations,
-                alignment=documents.alignment(step),
-            )
-            return self.state(self._publish(last))
+            return self._resolved("align", t0, step.stats, documents.alignment(step))
+
+    def _resolved(
+        self,
+        kind: str,
+        t0: float,
+        stats: CorrectionStats,
+        alignment: dict[str, Any] | None = None,
+    ) -> dict[str, Any]:
+        """The new State after a re-solve (a loop closure step, an alignment) that started at
+        ``t0``: its ``last`` says what the solve cost (operation lock held)."""
+        last = documents.last_change(
+            kind,
+            1e3 * (time.perf_counter() - t0),
+            cost=stats.final_chi2,
+            initial_cost=stats.initial_chi2,
+            iterations=stats.iterations,
+            alignment=alignment,
+        )
+        return self.state(self._publish(last))
 
     def undo(self) -> dict[str, Any]:
         """Undo the last applied step (a correction, a loop closure step or an alignment); the
