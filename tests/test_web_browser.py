@@ -28,8 +28,8 @@ from web_support import (
     save_artifact,
     serve,
     to_client,
+    wait_map_change,
     wait_until,
-    wait_version_above,
     zoom_to,
 )
 
@@ -86,7 +86,7 @@ def apply_through_page(page: Any, drawn: DrawnCorrection) -> int:
     page.wait_for_function("window.hitl.highlighted().a > 0 && window.hitl.highlighted().b > 0")
     version = int(page.evaluate("window.hitl.version"))
     page.keyboard.press("p")
-    return wait_version_above(page, version)
+    return wait_map_change(page, version)
 
 
 def test_collinear_correction_from_the_simulated_human(
@@ -117,7 +117,7 @@ def test_collinear_correction_from_the_simulated_human(
 
     version = int(page.evaluate("window.hitl.version"))
     page.keyboard.press("p")
-    wait_version_above(page, version)
+    wait_map_change(page, version)
     page.wait_for_function("window.hitl.lastRedrawMs !== null")
     assert page.evaluate("window.hitl.message.kind") == "ok"
     assert not page.evaluate("window.hitl.correcting")
@@ -157,14 +157,14 @@ def test_undo_restores_the_map_exactly_and_redo_brings_it_back(
 
     version = int(page.evaluate("window.hitl.version"))
     page.keyboard.press("u")
-    version = wait_version_above(page, version)
+    version = wait_map_change(page, version)
     assert demo.poses_bytes() == original
     assert demo.state()["applied"] == 0
     # The page shows the restored map: what it holds is what the server serves.
     assert page.evaluate("window.hitl.state.can_redo")
 
     page.keyboard.press("Shift+U")
-    wait_version_above(page, version)
+    wait_map_change(page, version)
     assert demo.poses_bytes() == corrected
     assert demo.state()["applied"] == 1
     assert page.errors == []
@@ -310,7 +310,7 @@ def test_escape_help_buttons_errors_and_two_tabs(
     assert page.evaluate("window.hitl.mode") == "collinear"
     version = int(page.evaluate("window.hitl.version"))
     page.click("#btn-apply")
-    version = wait_version_above(page, version)
+    version = wait_map_change(page, version)
     assert demo.state()["applied"] == 1
     other.wait_for_function(f"window.hitl.version >= {version}", timeout=5_000)
     assert other.evaluate("window.hitl.state.applied") == 1
@@ -366,7 +366,7 @@ def test_save_and_journal_step(tmp_path: Path, browser: Any) -> None:
         for k in (1, 2):
             version = int(page.evaluate("window.hitl.version"))
             page.keyboard.press("l")
-            wait_version_above(page, version)
+            wait_map_change(page, version)
             state = server.state()
             assert state["journal"]["next"] == k
             assert state["applied"] == k
@@ -419,7 +419,7 @@ def test_a_reload_shows_every_segment_where_the_live_page_did(
     page.wait_for_function("window.hitl.highlighted().a > 0 && window.hitl.highlighted().b > 0")
     version = int(page.evaluate("window.hitl.version"))
     page.keyboard.press("p")
-    wait_version_above(page, version)
+    wait_map_change(page, version)
     page.wait_for_function("window.hitl.appliedLines().length === 1")
     assert not page.evaluate("window.hitl.hintVisible()")  # the first correction is made
 

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from hitl_slam.sim import SimulatedHuman, lost_poses_room
-from web_support import chromium, open_page, serve, wait_until
+from web_support import chromium, open_page, serve, wait_map_change, wait_until
 
 # What the other origin's page does; TARGET is the hitl-slam server, DRAWN a correction it would
 # accept. Each attempt's outcome lands in window.outcome, the forms' in window.formsLoaded.
@@ -201,7 +201,7 @@ def test_a_page_of_another_origin_cannot_undo_redo_save_or_correct(
         # The page's own requests still go through: undo and redo from its keys, save with v.
         version = int(own.evaluate("window.hitl.version"))
         own.keyboard.press("u")
-        own.wait_for_function(f"window.hitl.version > {version}")
+        wait_map_change(own, version)
         assert api("GET", "/api/state").json()["can_undo"] is False
         own.keyboard.press("v")
         assert wait_until(lambda: len(list(folder.glob("lost-poses-corrected.*"))) == 4)

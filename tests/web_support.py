@@ -238,8 +238,14 @@ def draw_segment(page: Any, segment: Sequence[Sequence[float]], modifiers: Seque
             page.keyboard.up(key)
 
 
-def wait_version_above(page: Any, version: int, timeout_ms: float = 30_000) -> int:
-    page.wait_for_function(f"window.hitl.version > {version}", timeout=timeout_ms)
+def wait_map_change(page: Any, version: int, timeout_ms: float = 30_000) -> int:
+    """Wait until the page shows poses newer than ``version`` and is idle; its version now.
+
+    Not merely a newer version: the version also rises when the background inconsistency of
+    the current poses lands, which can happen just after ``version`` was read."""
+    page.wait_for_function(
+        f"window.hitl.state.map_version > {version} && !window.hitl.busy", timeout=timeout_ms
+    )
     return int(page.evaluate("window.hitl.version"))
 
 
