@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from hitl_slam._core import SolveReport
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import Interpretation
 from hitl_slam.errors import InputError, SolverError
@@ -68,17 +69,26 @@ class Alignment:
     steps: int  # odometry steps of the input map checked
     contradicted: int  # of them, contradicted by the aligned poses
     inconsistency: tuple[float, float]  # [m^2] before and after
+    relation_dcs: float  # the Phi of the relations in the solve kept (see align_relation_dcs)
     iterations: int
     initial_chi2: float
     final_chi2: float
     time_s: float
 
 
-def aligned_config(config: Config) -> Config:
+def aligned_config(config: Config, relation_dcs: float | None = None) -> Config:
     """The configuration of every solve over an aligned graph: each correction's relation
-    carries dynamic covariance scaling with ``config.align_relation_dcs`` (the scans are a
-    second witness: a statement they contradict yields to them)."""
-    return config.replace(relation_dcs=config.align_relation_dcs)
+    carries dynamic covariance scaling with ``relation_dcs`` (the Phi the alignment kept,
+    :attr:`Alignment.relation_dcs`; default ``config.align_relation_dcs``)."""
+    phi = config.align_relation_dcs if relation_dcs is None else relation_dcs
+    return config.replace(relation_dcs=phi)
+
+
+def relation_candidates(config: Config) -> tuple[float, ...]:
+    """The Phis an alignment solves with, in order of preference on a tie: the scans as a
+    second witness (``config.align_relation_dcs``: a statement they contradict yields to
+    them), then the relations as firm as in every other solve (``config.relation_dcs``)."""
+    return tuple(dict.fromkeys((config.align_relation_dcs, config.relation_dcs)))
 
 
 def contradicted(map: Map, poses: FloatArray) -> tuple[int, int]:
@@ -168,11 +178,24 @@ def align(
             "closer by drawing first, or there is no place the robot saw twice"
         )
     graph = front.accepted_map()
-    start = graph.poses
-    solved, lines, report = solve_all(graph, active, aligned_config(config), start=start)
-    solved = np.asarray(solved, dtype=np.float64)
-    if solved.shape != (n, 3) or not np.isfinite(solved).all():
-        raise SolverError("the aligned solve returned malformed poses; the map was not changed")
+    before = inconsistency(map, poses, config).total_m2
+    # How far a statement yields to the scans is decided by the scans too: each candidate Phi
+    # is solved and the more consistent map kept. Yielding lets passes the statements held a
+    # few centimetres apart meet, but where the front end kept few loop closures it can also
+    # let part of the map turn about them (docs/ALGORITHM.md §I.11).
+    best: tuple[float, float, FloatArray, FloatArray, SolveReport] | None = None
+    for phi in relation_candidates(config) if active else (config.align_relation_dcs,):
+        x, lines_x, report_x = solve_all(
+            graph, active, aligned_config(config, phi), start=graph.poses
+        )
+        x = np.asarray(x, dtype=np.float64)
+        if x.shape != (n, 3) or not np.isfinite(x).all():
+            raise SolverError("the aligned solve returned malformed poses; the map was not changed")
+        inc = inconsistency(map, x, config).total_m2
+        if best is None or inc < best[0]:
+            best = (inc, phi, x, np.asarray(lines_x, dtype=np.float64), report_x)
+    assert best is not None
+    after, phi, solved, lines, report = best
     k, steps = contradicted(map, solved)
     if steps and k > config.align_max_contradicted * steps:
         raise AlignmentRefused(
@@ -183,8 +206,6 @@ def align(
             "unreliable on these scans here (few features, or a fault not yet corrected): "
             "correct what is left by drawing"
         )
-    before = inconsistency(map, poses, config).total_m2
-    after = inconsistency(map, solved, config).total_m2
     if config.align_consistency_guard and not after < before:
         raise AlignmentRefused(
             f"the aligned map is no more consistent with its scans than the map is: its "
@@ -197,12 +218,13 @@ def align(
         measurements=graph.measurements,
         information=graph.information,
         poses=solved,
-        lines=np.asarray(lines, dtype=np.float64).reshape(-1, 2),
+        lines=lines.reshape(-1, 2),
         loop_closures=kept,
         loop_closures_rejected=rejected,
         steps=steps,
         contradicted=k,
         inconsistency=(float(before), float(after)),
+        relation_dcs=float(phi),
         iterations=int(report.iterations),
         initial_chi2=float(report.initial_chi2),
         final_chi2=float(report.final_chi2),

@@ -505,7 +505,9 @@ def _align_session(args: argparse.Namespace, session: Session) -> None:
         print(
             f"       aligned with the scans: {step.loop_closures} loop closures kept "
             f"({step.loop_closures_rejected} rejected); the aligned map contradicts "
-            f"{step.contradicted} of {step.steps} odometry steps beyond their 99.9% bound"
+            f"{step.contradicted} of {step.steps} odometry steps beyond their 99.9% bound; "
+            f"inconsistency {step.inconsistency[0]:.1f} -> {step.inconsistency[1]:.1f} m^2; "
+            f"the statements carry DCS Phi {step.relation_dcs:g} (the more consistent solve)"
         )
 
 

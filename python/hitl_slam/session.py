@@ -232,6 +232,7 @@ class AlignStep:
     steps: int  # odometry steps of the input map checked by the guard
     contradicted: int  # of them, contradicted by the aligned poses beyond their 99.9% bound
     inconsistency: tuple[float, float]  # [m^2] of the map before and after it
+    relation_dcs: float  # the Phi of the corrections' relations in every solve while in effect
 
 
 @dataclass(eq=False)
@@ -247,9 +248,10 @@ class _Align:
     information: NDArray[np.float64]
     counts: tuple[int, int, int, int]  # loop closures kept, rejected; steps, contradicted
     inconsistency: tuple[float, float]
+    relation_dcs: float | None  # None: an older journal's, config.align_relation_dcs
     graph: Map | None = None  # the aligned map, made on first use
 
-    def snapshot(self) -> AlignStep:
+    def snapshot(self, config: Config) -> AlignStep:
         kept, rejected, steps, bad = self.counts
         return AlignStep(
             self.seq,
@@ -261,7 +263,14 @@ class _Align:
             steps,
             bad,
             self.inconsistency,
+            self.config(config).relation_dcs,
         )
+
+    def config(self, config: Config) -> Config:
+        """``config`` as every solve uses it while this alignment is in effect."""
+        from hitl_slam.alignment import aligned_config
+
+        return aligned_config(config, self.relation_dcs)
 
     def map_of(self, map: Map) -> Map:
         if self.graph is None:
@@ -440,6 +449,11 @@ class _State:
         if not (isinstance(inc, list) and len(inc) == 2):
             raise ValueError(f"its inconsistency is not [before, after]: {inc!r}")
         inc_pair = (float(inc[0]), float(inc[1]))
+        phi = payload.get("relation_dcs")
+        if phi is not None and not (
+            isinstance(phi, (int, float)) and not isinstance(phi, bool) and phi >= 0
+        ):
+            raise ValueError(f"its relation_dcs is not a Phi >= 0: {phi!r}")
         step = _Align(
             seq=event.seq,
             time=event.time,
@@ -452,6 +466,7 @@ class _State:
             information=info,
             counts=counts,  # type: ignore[arg-type]
             inconsistency=inc_pair,
+            relation_dcs=None if phi is None else float(phi),
         )
         self._discard_redo()
         self.applied.append(step)
@@ -930,11 +945,15 @@ class Session:
     def _solve_config(self) -> Config:
         """The configuration corrections solve with now (called with the guard held): the
         session's, or while an alignment is in effect its :func:`aligned_config`."""
-        if self._state.alignment() is None:
-            return self._config
-        from hitl_slam.alignment import aligned_config
+        aligned = self._state.alignment()
+        return self._config if aligned is None else aligned.config(self._config)
 
-        return aligned_config(self._config)
+    @property
+    def alignment(self) -> AlignStep | None:
+        """The alignment with the scans in effect (:meth:`align`), None when there is none."""
+        with self._guard:
+            step = self._state.alignment()
+            return None if step is None else step.snapshot(self._config)
 
     @property
     def aligned(self) -> bool:
@@ -1188,12 +1207,13 @@ class Session:
                 "steps": done.steps,
                 "contradicted": done.contradicted,
                 "inconsistency": list(done.inconsistency),
+                "relation_dcs": done.relation_dcs,
             }
             self._record(EventKind.ALIGN, payload, after)
             with self._guard:
                 top = self._state.applied[-1]
                 assert isinstance(top, _Align)
-                return top.snapshot()
+                return top.snapshot(self._config)
 
     def undo(self) -> HistoryEntry | LoopClosureStep | AlignStep:
         """Undo the last applied step (a correction, a loop closure rejected or reinstated, or an
@@ -1242,6 +1262,8 @@ class Session:
                     raise StepRefused(f"nothing to {kind.value}")
                 entry = stack[-1]
             self._record(kind, {"request": entry.seq})
+            if isinstance(entry, _Align):
+                return entry.snapshot(self._config)
             return entry.snapshot()
 
     def record_output(self, path: str | os.PathLike[str]) -> None:
@@ -1308,6 +1330,7 @@ class Session:
         active: list[Interpretation] = []
         outcomes: list[Any] = []
         aligned: Map | None = None
+        aligned_phi = 0.0
         for k, step in enumerate(steps):
             if isinstance(step, _Align):
                 from hitl_slam.alignment import align, aligned_map
@@ -1315,6 +1338,7 @@ class Session:
                 done = align(self._map, poses, active, self._config)
                 poses = _checked_poses(done.poses, poses.shape)
                 aligned = aligned_map(self._map, done.edges, done.measurements, done.information)
+                aligned_phi = done.relation_dcs
                 outcomes.append(done)
                 continue
             if isinstance(step, _Toggle):
@@ -1334,7 +1358,7 @@ class Session:
             if aligned is not None:
                 from hitl_slam.alignment import aligned_config
 
-                config = aligned_config(config)
+                config = aligned_config(config, aligned_phi)
             poses = _apply_next(
                 apply, target, poses, step.drawn, active, outcomes, config, f"step {k + 1}"
             )
