@@ -112,10 +112,11 @@ class Config:
     align_min_loop_closures: int = 1
     # and when the aligned map is not less inconsistent (§6) than the map before it (False: off)
     align_consistency_guard: bool = True
-    # and every solve over an aligned graph (the alignment's own, and each correction while it
-    # is in effect) gives each correction's relation dynamic covariance scaling with this Phi
-    # instead of relation_dcs: the scans are a second witness, so a statement they contradict
-    # by more than about 1 cm (sqrt(Phi / K1)) yields to them (docs/ALGORITHM.md §I.11)
+    # the alignment solves twice, giving each correction's relation dynamic covariance scaling
+    # with this Phi (the scans as a second witness: a statement they contradict by more than
+    # about 1 cm, sqrt(Phi / K1), yields to them) and with relation_dcs (as firm as elsewhere),
+    # and keeps the more consistent map; every later solve while it is in effect uses the Phi
+    # it kept (docs/ALGORITHM.md §I.11)
     align_relation_dcs: float = 100.0
     # §6.1 metric / occupancy export
     grid_resolution: float = 0.05  # [m]

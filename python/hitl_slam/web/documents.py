@@ -105,7 +105,7 @@ def alignment(step: AlignStep) -> dict[str, Any]:
     """The figures of an alignment with the scans, for its ``last``: the loop closures the
     front end kept and rejected, the input map's odometry steps the guard checked and how many
     of them the aligned map contradicts, how far the poses moved, and the map's inconsistency
-    [m^2] before and after."""
+    [m^2] before and after, and the Phi of the statements in the solve kept."""
     return {
         "loop_closures": step.loop_closures,
         "loop_closures_rejected": step.loop_closures_rejected,
@@ -114,4 +114,5 @@ def alignment(step: AlignStep) -> dict[str, Any]:
         "poses_moved": step.stats.poses_moved,
         "max_move_m": step.stats.max_move_m,
         "inconsistency": list(step.inconsistency),
+        "relation_dcs": step.relation_dcs,
     }

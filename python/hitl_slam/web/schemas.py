@@ -117,6 +117,7 @@ class AlignmentFigures(_Response):
     poses_moved: int  # poses that moved (more than 1 mm or 1 mrad)
     max_move_m: float  # [m] the largest change of a pose position
     inconsistency: tuple[float, float]  # [m^2] of the map before and after
+    relation_dcs: float  # the Phi of the statements' relations in the solve kept
 
 
 class Last(_Response):
