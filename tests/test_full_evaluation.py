@@ -92,6 +92,12 @@ def test_a_run_records_every_drawing_and_the_report_shows_the_targets() -> None:
     text = full_report([run], "provenance line")
     for needle in ("drawings accepted >= 95%", "## Refusals by reason", "### Orebro, jump, 5 cm"):
         assert needle in text
+    # The last step, the alignment with the scans, says which of its two solves it kept.
+    assert run.alignment.startswith(("applied (Phi 100)", "applied (Phi 1000)", "refused: "))
+    assert "## Alignment with the scans" in text
+    if run.alignment.startswith("applied"):
+        firm = int(run.alignment == "applied (Phi 1000)")
+        assert f"it kept the firm one, the more consistent there, in {firm}." in text
     s = summary([run])
     assert s["drawings"] == len(run.drawings)
 

@@ -111,7 +111,8 @@ class Run:
     faults: str = ""
     extra: dict[str, float] = field(default_factory=dict)
     # the person's last step: the map aligned with its scans (docs/ALGORITHM.md §I.11): ""
-    # (not tried), "applied", or "refused: <why>"; and ATE, angle, spacing and inconsistency
+    # (not tried), "applied (Phi <the statements' Phi in the solve kept>)", or "refused: <why>";
+    # and ATE, angle, spacing and inconsistency
     # before it (after the last drawing)
     alignment: str = ""
     before_alignment: tuple[float, float, float, float] | None = None
@@ -285,11 +286,11 @@ def evaluate_run(
                 inc0.total_m2,  # type: ignore[attr-defined]
             )
             try:
-                session.align()
+                step = session.align()
             except InputError as err:
                 alignment = f"refused: {err}"
             else:
-                alignment = "applied"
+                alignment = f"applied (Phi {step.relation_dcs:g})"
                 poses = np.array(session.poses)
                 ate0, ang0, inc0 = score(poses, like=first[2])
         if on_end is not None:
@@ -394,7 +395,7 @@ def _fmt_run(r: Run) -> str:
 
 def _alignment_worse(r: Run) -> bool:
     """The alignment was applied and raised ATE or the mean wall-angle error by over 5%."""
-    if r.alignment != "applied" or r.before_alignment is None:
+    if not r.alignment.startswith("applied") or r.before_alignment is None:
         return False
     ate0, ang0 = r.before_alignment[:2]
     return r.ate[1] > WORSE * ate0 or r.angle[1] > WORSE * ang0
@@ -419,8 +420,9 @@ def _alignment_lines(runs: Sequence[Run]) -> list[str]:
     tried = [r for r in runs if r.alignment]
     if not tried:
         return []
-    applied = [r for r in tried if r.alignment == "applied"]
+    applied = [r for r in tried if r.alignment.startswith("applied")]
     worse = [r for r in applied if _alignment_worse(r)]
+    firm = [r for r in applied if r.alignment == f"applied (Phi {DEFAULT.relation_dcs:g})"]
     lines = [
         "## Alignment with the scans",
         "",
@@ -428,8 +430,10 @@ def _alignment_lines(runs: Sequence[Run]) -> list[str]:
         "(docs/ALGORITHM.md §I.11), the run's section below says which: "
         + ", ".join(f"{v} {k}" for k, v in sorted(_refusals(tried).items()))
         + f". It raised ATE or the mean wall-angle error by more than 5% in {len(worse)} of the "
-        f"{len(applied)}. Before: after the last drawing; after: after the alignment (the runs "
-        "table's 'out').",
+        f"{len(applied)}. Of the two solves it tries (the statements yielding to the scans, "
+        f"Phi {DEFAULT.align_relation_dcs:g}, or firm, Phi {DEFAULT.relation_dcs:g}) it kept the "
+        f"firm one, the more consistent there, in {len(firm)}. Before: after the last drawing; "
+        "after: after the alignment (the runs table's 'out').",
         "",
         "| map | fault | noise (cm) | alignment | ATE (m) | angle (deg) | spacing (m) "
         "| inconsistency (m^2) |",
