@@ -222,9 +222,23 @@ def test_a_malformed_graph_is_damage_even_with_a_valid_checksum(tmp_path: Path) 
         problem = state.feed(event)
         assert problem is not None
         assert why in problem, problem
+    for phi in (-1.0, float("nan"), "100", True, [100.0]):
+        payload = {**base, "graph": good, "relation_dcs": phi}
+        problem = state.feed(Event(7, 0.0, EventKind.ALIGN, payload, m.poses.copy()))
+        assert problem is not None
+        assert "relation_dcs" in problem, problem
     assert (
         state.feed(Event(8, 0.0, EventKind.ALIGN, {**base, "graph": good}, m.poses.copy())) is None
     )
+    # An older file's event has no relation_dcs: the configured align_relation_dcs applies.
+    older = state.alignment()
+    assert older is not None
+    assert older.config(DEFAULT).relation_dcs == DEFAULT.align_relation_dcs
+    with_phi = {**base, "graph": good, "relation_dcs": 1000.0}
+    assert state.feed(Event(9, 0.0, EventKind.ALIGN, with_phi, m.poses.copy())) is None
+    newer = state.alignment()
+    assert newer is not None
+    assert newer.config(DEFAULT).relation_dcs == 1000.0
 
 
 def _correct_align(m: Map, folder: Path, out: Path, hitl: Path) -> int:
