@@ -302,7 +302,8 @@ class SessionHost:
             self._check_open()
             t0 = time.perf_counter()
             step = self._session.align()
-            return self._resolved("align", t0, step.stats, documents.alignment(step))
+            figures = documents.alignment(step, self._session.config.relation_dcs)
+            return self._resolved("align", t0, step.stats, figures)
 
     def _resolved(
         self,
