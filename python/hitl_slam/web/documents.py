@@ -101,13 +101,13 @@ def last_change(
     }
 
 
-def alignment(step: AlignStep, firm_dcs: float) -> dict[str, Any]:
+def alignment(step: AlignStep, firm_dcs: float, corrections: int) -> dict[str, Any]:
     """The figures of an alignment with the scans, for its ``last``: the loop closures the
     front end kept and rejected, the input map's odometry steps the guard checked and how many
     of them the aligned map contradicts, how far the poses moved, and the map's inconsistency
     [m^2] before and after, and the Phi of the statements in the solve kept, with whether they
-    yielded to the scans there (a Phi below ``firm_dcs``, the session's ``relation_dcs``) or held
-    firm."""
+    yielded to the scans there (a Phi below ``firm_dcs``, the session's ``relation_dcs``), held
+    firm, or there were none (``corrections`` in effect: 0)."""
     return {
         "loop_closures": step.loop_closures,
         "loop_closures_rejected": step.loop_closures_rejected,
@@ -117,5 +117,7 @@ def alignment(step: AlignStep, firm_dcs: float) -> dict[str, Any]:
         "max_move_m": step.stats.max_move_m,
         "inconsistency": list(step.inconsistency),
         "relation_dcs": step.relation_dcs,
-        "statements": "yield" if step.relation_dcs < firm_dcs else "firm",
+        "statements": (
+            "none" if corrections == 0 else "yield" if step.relation_dcs < firm_dcs else "firm"
+        ),
     }

@@ -302,7 +302,9 @@ class SessionHost:
             self._check_open()
             t0 = time.perf_counter()
             step = self._session.align()
-            figures = documents.alignment(step, self._session.config.relation_dcs)
+            figures = documents.alignment(
+                step, self._session.config.relation_dcs, len(self._session.active)
+            )
             return self._resolved("align", t0, step.stats, figures)
 
     def _resolved(

@@ -118,7 +118,7 @@ class AlignmentFigures(_Response):
     max_move_m: float  # [m] the largest change of a pose position
     inconsistency: tuple[float, float]  # [m^2] of the map before and after
     relation_dcs: float  # the Phi of the statements' relations in the solve kept
-    statements: Literal["yield", "firm"]  # whether they yielded to the scans there
+    statements: Literal["yield", "firm", "none"]  # whether they yielded to the scans there
 
 
 class Last(_Response):

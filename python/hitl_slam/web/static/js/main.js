@@ -535,9 +535,11 @@ class App {
         ? ` (${a.poses_moved} poses moved, at most ${a.max_move_m.toFixed(2)} m; ` +
           `${a.loop_closures} loop closure${a.loop_closures === 1 ? "" : "s"}; ` +
           `${a.contradicted} of ${a.steps} odometry steps contradicted; ` +
-          `inconsistency ${a.inconsistency[0].toFixed(0)} \u2192 ${a.inconsistency[1].toFixed(0)} m\u00b2; ` +
-          `your statements ${a.statements === "yield" ? "yield to the scans" : "held firm"}, ` +
-          `the more consistent way)`
+          `inconsistency ${a.inconsistency[0].toFixed(0)} \u2192 ${a.inconsistency[1].toFixed(0)} m\u00b2` +
+          (a.statements === "none"
+            ? ")"
+            : `; your statements ${a.statements === "yield" ? "yield to the scans" : "held firm"}, ` +
+              "the more consistent way)")
         : "";
       this.ui.show(`aligned with the scans${took}${figures}; u returns to the map before`, "ok");
       this.setState(s);
