@@ -13,12 +13,13 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.map import Map
 from hitl_slam.session import Session
-from hitl_slam.sim import lost_poses_room
+from hitl_slam.sim import SimulatedHuman, lost_poses_room
 from loop_support import map_with_loops
 from web_support import (
     Server,
@@ -202,3 +203,24 @@ def test_a_refused_alignment_shows_its_reason_and_changes_nothing(
     assert page.locator(INDICATOR).is_hidden()
     save_artifact(page, "align-refused.png")
     assert page.errors == []
+
+
+def test_the_message_says_which_way_the_statements_went(browser: Any, tmp_path: Path) -> None:
+    """With a correction in effect the alignment solves twice (the statements yielding to the
+    scans, or firm) and keeps the more consistent map; its message says which."""
+    scenario = lost_poses_room(0)
+    path = tmp_path / "room.hitl"
+    with Session.new(scenario.map, path, config=PERMISSIVE) as session:
+        drawn = SimulatedHuman(scenario, 0).next_correction(np.array(session.poses))
+        assert drawn is not None
+        session.apply(drawn)
+    with serve(tmp_path, path.name) as server:
+        page = open_page(browser, server.url)
+        page.keyboard.press("Shift+A")
+        settle(page, "window.hitl.state.aligned === true")
+        statements = server.state()["last"]["alignment"]["statements"]
+        assert statements in ("yield", "firm")
+        text = page.evaluate("window.hitl.message.text")
+        wanted = "yield to the scans" if statements == "yield" else "held firm"
+        assert f"your statements {wanted}, the more consistent way" in text, text
+        assert page.errors == []
