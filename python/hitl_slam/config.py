@@ -101,6 +101,12 @@ class Config:
     # factors) score a chi2 above this quantile of chi2 with 3 x edges dof is tried again with
     # the passes nearest the drawings, then refused with the figures (0 = off)
     consistency_guard: float = 0.999
+    # a correction whose passes are joined by chain steps the scans could not check (the
+    # odometry check found no match there, so a heading fault can hide in them) is also solved
+    # with these kernels on the odometry (a fault then stays where it happened instead of
+    # spreading over the stretch), and the more consistent map (§6) of the two is kept
+    # (docs/ALGORITHM.md §I.12; "" = off; not tried when `robust` names an odometry kernel)
+    unchecked_alternative: str = "odometry=dcs:1"
     # where EM finds no line under a segment, find the pass drawn on by itself
     # (docs/ALGORITHM.md §I.4; off: on the standard evaluation it took Freiburg 079 from 1.2 to
     # 5.1 deg)

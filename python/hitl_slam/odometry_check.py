@@ -27,7 +27,7 @@ from hitl_slam.config import DEFAULT, Config
 from hitl_slam.geometry import chain_steps, compose
 from hitl_slam.map import Map
 
-__all__ = ["OdometryCheck", "check_odometry", "checked_map"]
+__all__ = ["OdometryCheck", "check_odometry", "checked_map", "unchecked_steps"]
 
 FloatArray = NDArray[np.float64]
 logger = logging.getLogger(__name__)
@@ -192,7 +192,7 @@ def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
     )
 
 
-_CACHE: dict[int, tuple[weakref.ref[Map], tuple[float, float], Map]] = {}
+_CACHE: dict[int, tuple[weakref.ref[Map], tuple[float, float], Map, NDArray[np.bool_]]] = {}
 
 
 def checked_map(map: Map, config: Config = DEFAULT) -> Map:
@@ -206,14 +206,28 @@ def checked_map(map: Map, config: Config = DEFAULT) -> Map:
     hit = _CACHE.get(key)
     if hit is not None and hit[0]() is map and hit[1] == settings:
         return hit[2]
-    out = _derived_check(map, config)
-    if out is None:
+    derived = _derived_check(map, config)
+    if derived is None:
         check = check_odometry(map, config)
         out = dataclasses.replace(
             map, measurements=check.measurements, information=check.information
         )
-    _CACHE[key] = (weakref.ref(map, partial(_forget, key)), settings, out)
+        unchecked = ~check.matched
+        unchecked.flags.writeable = False
+    else:
+        out, unchecked = derived
+    _CACHE[key] = (weakref.ref(map, partial(_forget, key)), settings, out, unchecked)
     return out
+
+
+def unchecked_steps(map: Map, config: Config = DEFAULT) -> NDArray[np.bool_]:
+    """``(N - 1,)`` read-only: the chain steps k -> k+1 that the scans could not check (no
+    match: too little overlap, a featureless view), where a fault can hide from the check; all
+    False when the check is off. Computed with :func:`checked_map`, once per map."""
+    if (config.odometry_check <= 0 and config.odometry_fuse <= 0) or map.num_poses < 2:
+        return np.zeros(max(map.num_poses - 1, 0), dtype=bool)
+    checked_map(map, config)
+    return _CACHE[id(map)][3]
 
 
 def _forget(key: int, _ref: object) -> None:
@@ -240,8 +254,9 @@ def _forget_derived(key: int, _ref: object) -> None:
     _DERIVED.pop(key, None)
 
 
-def _derived_check(map: Map, config: Config) -> Map | None:
-    """:func:`checked_map` of a map registered by :func:`share_check`, from its full map's."""
+def _derived_check(map: Map, config: Config) -> tuple[Map, NDArray[np.bool_]] | None:
+    """:func:`checked_map` of a map registered by :func:`share_check`, from its full map's, and
+    the full map's unchecked steps (the same chain)."""
     hit = _DERIVED.get(id(map))
     if hit is None or hit[0]() is not map:
         return None
@@ -250,6 +265,7 @@ def _derived_check(map: Map, config: Config) -> Map | None:
         return None
     checked = checked_map(full, config)
     keep = hit[2]
-    return dataclasses.replace(
+    out = dataclasses.replace(
         map, measurements=checked.measurements[keep], information=checked.information[keep]
     )
+    return out, _CACHE[id(full)][3]

@@ -7,6 +7,7 @@ Inputs are never modified; a drawing that cannot be interpreted raises Correctio
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -15,7 +16,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import partial
 from statistics import NormalDist
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,7 +24,7 @@ from numpy.typing import NDArray
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation
-from hitl_slam.errors import InputError
+from hitl_slam.errors import CorrectionRejected, InputError, SolverError
 from hitl_slam.geometry import chain_steps
 from hitl_slam.map import Map, motion_model_information
 from hitl_slam.solve import robust_pairs
@@ -228,6 +229,70 @@ def explicit_and_backpropagate(
     return moved, transform
 
 
+def _unchecked_alternative(
+    map: Map,
+    checked: Map,
+    engine: _core.CorrectionEngine,
+    lock: threading.Lock,
+    h: Interpretation,
+    poses: FloatArray,
+    config: Config,
+    request: tuple[Any, FloatArray, Any, Any, DrawnCorrection],
+    active_rows: list[tuple[str, NDArray[np.int64], NDArray[np.int64]]],
+    sigma_h: float,
+    z: float,
+) -> tuple[Interpretation, FloatArray, FloatArray, FloatArray, _core.SolveReport] | None:
+    """The correction solved again with ``config.unchecked_alternative`` on the odometry when
+    the chain between its passes has steps the scans could not check (docs/ALGORITHM.md
+    §I.12), if that map is the more consistent (§6); None to keep the first solve."""
+    from hitl_slam.interpret import from_core
+    from hitl_slam.metrics import inconsistency
+    from hitl_slam.odometry_check import unchecked_steps
+
+    spec = config.unchecked_alternative
+    if not spec or map.num_points == 0:
+        return None
+    if any(cls == "odometry" for cls, _ in robust_pairs(config.robust)):
+        return None  # the person chose the odometry's kernel
+    rows = np.concatenate([h.x_a, h.x_b])
+    lo, hi = int(rows.min()), int(rows.max())
+    gaps = np.flatnonzero(unchecked_steps(checked, config)[lo:hi]) + lo
+    if gaps.size == 0:
+        return None
+    scans, current, seg_a, seg_b, drawn = request
+    alt_config = config.replace(robust=f"{config.robust},{spec}" if config.robust else spec)
+    try:
+        with lock:
+            t, alt_poses, lines, transform, report, _, _ = engine.apply(
+                scans,
+                current,
+                seg_a,
+                seg_b,
+                drawn.mode.value,
+                active_rows,
+                config,
+                sigma_h=sigma_h,
+                robust=joint_kernels(alt_config),
+                consistency_z=z,
+            )
+    except (CorrectionRejected, SolverError) as exc:
+        logger.debug("correction: the alternative with %s failed: %s", spec, exc)
+        return None
+    first = inconsistency(map, poses, config).total_m2
+    second = inconsistency(map, alt_poses, config).total_m2
+    if not second < first:
+        return None
+    alt = from_core(t)
+    note = (
+        f"{gaps.size} chain step{'s' if gaps.size != 1 else ''} between the passes "
+        f"(first {int(gaps[0])}) could not be checked by the scans; solved with {spec} on the "
+        f"odometry too, which left the map more consistent ({first:.1f} -> {second:.1f} m^2), "
+        "and kept that"
+    )
+    alt = dataclasses.replace(alt, notes=(*alt.notes, note))
+    return alt, alt_poses, lines, transform, report
+
+
 def apply_correction(
     map: Map,
     poses: FloatArray,
@@ -289,6 +354,21 @@ def apply_correction(
             consistency_z=z,
         )
     h = from_core(t)
+    alternative = _unchecked_alternative(
+        map,
+        checked,
+        engine,
+        lock,
+        h,
+        new_poses,
+        config,
+        (scans, current, seg_a, seg_b, drawn),
+        active_rows,
+        sigma_h,
+        z,
+    )
+    if alternative is not None:
+        h, new_poses, lines, transform, report = alternative
     for note in h.notes:
         logger.debug("correction: %s", note)
     t2 = time.perf_counter()
