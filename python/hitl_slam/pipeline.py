@@ -231,7 +231,6 @@ def explicit_and_backpropagate(
 
 def _unchecked_alternative(
     map: Map,
-    checked: Map,
     engine: _core.CorrectionEngine,
     lock: threading.Lock,
     h: Interpretation,
@@ -256,7 +255,7 @@ def _unchecked_alternative(
         return None  # the person chose the odometry's kernel
     rows = np.concatenate([h.x_a, h.x_b])
     lo, hi = int(rows.min()), int(rows.max())
-    gaps = np.flatnonzero(unchecked_steps(checked, config)[lo:hi]) + lo
+    gaps = np.flatnonzero(unchecked_steps(map, config)[lo:hi]) + lo
     if gaps.size == 0:
         return None
     scans, current, seg_a, seg_b, drawn = request
@@ -356,7 +355,6 @@ def apply_correction(
     h = from_core(t)
     alternative = _unchecked_alternative(
         map,
-        checked,
         engine,
         lock,
         h,
