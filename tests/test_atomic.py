@@ -9,7 +9,6 @@ import logging
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -153,7 +152,7 @@ def dead_pid() -> int:
 def test_stale_temporary_files_are_swept_and_live_ones_kept(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    old = time.time() - 3600
+    old = atomic.PROCESS_START - 3600
     dead = dead_pid()
     stale = tmp_path / f".map.covars.{dead}-0123abcd.hitl-tmp"
     legacy = tmp_path / ".map.covars.0123abcd.tmp"
@@ -180,7 +179,10 @@ def test_the_first_write_into_a_folder_sweeps_it(
     monkeypatch.setattr(atomic, "_SWEPT", set())
     stale = tmp_path / f".big.covars.{dead_pid()}-0123abcd.hitl-tmp"
     stale.write_bytes(b"\0" * 100_000)
-    os.utime(stale, (time.time() - 60, time.time() - 60))
+    # Last modified before this process started (the sweep keeps anything newer: it may be a
+    # write this process does not know of), however long the test session has been running.
+    past = atomic.PROCESS_START - 60
+    os.utime(stale, (past, past))
     atomic_write_text(tmp_path / "other.txt", "x\n")
     assert os.listdir(tmp_path) == ["other.txt"]
 
@@ -204,7 +206,7 @@ def test_a_killed_writer_leaves_only_a_recognisable_temporary_file(tmp_path: Pat
     left = [n for n in os.listdir(tmp_path) if n != "out.txt"]
     assert len(left) == 1
     assert TEMP_PATTERN.match(left[0])
-    past = time.time() - 60
+    past = atomic.PROCESS_START - 60
     os.utime(tmp_path / left[0], (past, past))
     assert sweep_stale_temps(tmp_path) == [str(tmp_path / left[0])]
 
