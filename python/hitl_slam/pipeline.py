@@ -229,17 +229,41 @@ def explicit_and_backpropagate(
     return moved, transform
 
 
+@dataclass(frozen=True)
+class _EngineCall:
+    """One correction's arguments to ``CorrectionEngine.apply``, to run with a choice of the
+    joint solve's robust kernels."""
+
+    engine: _core.CorrectionEngine
+    lock: threading.Lock
+    scans: Any
+    poses: FloatArray
+    seg_a: Any
+    seg_b: Any
+    mode: str
+    active_rows: list[tuple[str, NDArray[np.int64], NDArray[np.int64]]]
+    config: Config
+    sigma_h: float
+    consistency_z: float
+
+    def run(self, kernels: list[tuple[str, str]]) -> Any:
+        with self.lock:
+            return self.engine.apply(
+                self.scans,
+                self.poses,
+                self.seg_a,
+                self.seg_b,
+                self.mode,
+                self.active_rows,
+                self.config,
+                sigma_h=self.sigma_h,
+                robust=kernels,
+                consistency_z=self.consistency_z,
+            )
+
+
 def _unchecked_alternative(
-    map: Map,
-    engine: _core.CorrectionEngine,
-    lock: threading.Lock,
-    h: Interpretation,
-    poses: FloatArray,
-    config: Config,
-    request: tuple[Any, FloatArray, Any, Any, DrawnCorrection],
-    active_rows: list[tuple[str, NDArray[np.int64], NDArray[np.int64]]],
-    sigma_h: float,
-    z: float,
+    map: Map, call: _EngineCall, h: Interpretation, poses: FloatArray
 ) -> tuple[Interpretation, FloatArray, FloatArray, FloatArray, _core.SolveReport] | None:
     """The correction solved again with ``config.unchecked_alternative`` on the odometry when
     the chain between its passes has steps the scans could not check (docs/ALGORITHM.md
@@ -248,6 +272,7 @@ def _unchecked_alternative(
     from hitl_slam.metrics import inconsistency
     from hitl_slam.odometry_check import unchecked_steps
 
+    config = call.config
     spec = config.unchecked_alternative
     if not spec or map.num_points == 0:
         return None
@@ -258,22 +283,9 @@ def _unchecked_alternative(
     gaps = np.flatnonzero(unchecked_steps(map, config)[lo:hi]) + lo
     if gaps.size == 0:
         return None
-    scans, current, seg_a, seg_b, drawn = request
     alt_config = config.replace(robust=f"{config.robust},{spec}" if config.robust else spec)
     try:
-        with lock:
-            t, alt_poses, lines, transform, report, _, _ = engine.apply(
-                scans,
-                current,
-                seg_a,
-                seg_b,
-                drawn.mode.value,
-                active_rows,
-                config,
-                sigma_h=sigma_h,
-                robust=joint_kernels(alt_config),
-                consistency_z=z,
-            )
+        t, alt_poses, lines, transform, report, _, _ = call.run(joint_kernels(alt_config))
     except (CorrectionRejected, SolverError) as exc:
         logger.debug("correction: the alternative with %s failed: %s", spec, exc)
         return None
@@ -339,32 +351,22 @@ def apply_correction(
         )
         for h in active
     ]
-    with lock:
-        t, new_poses, lines, transform, report, t_interpret, t_core = engine.apply(
-            scans,
-            current,
-            seg_a,
-            seg_b,
-            drawn.mode.value,
-            active_rows,
-            config,
-            sigma_h=sigma_h,
-            robust=joint_kernels(config),
-            consistency_z=z,
-        )
-    h = from_core(t)
-    alternative = _unchecked_alternative(
-        map,
+    call = _EngineCall(
         engine,
         lock,
-        h,
-        new_poses,
-        config,
-        (scans, current, seg_a, seg_b, drawn),
+        scans,
+        current,
+        seg_a,
+        seg_b,
+        drawn.mode.value,
         active_rows,
+        config,
         sigma_h,
         z,
     )
+    t, new_poses, lines, transform, report, t_interpret, t_core = call.run(joint_kernels(config))
+    h = from_core(t)
+    alternative = _unchecked_alternative(map, call, h, new_poses)
     if alternative is not None:
         h, new_poses, lines, transform, report = alternative
     for note in h.notes:
