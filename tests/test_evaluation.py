@@ -18,6 +18,7 @@ from hitl_slam.evaluation import (
     table,
     targets,
 )
+from hitl_slam.geometry import to_world
 from hitl_slam.sim import Scenario
 from hitl_slam.sim.odometry import HeadingJump
 
@@ -112,3 +113,29 @@ def test_real_log_scenario_has_labelled_walls_and_known_pairs() -> None:
     assert s.errors(s.truth).mean_angular < 1e-6
     assert s.errors(s.map.poses).mean_angular > 1.0
     assert np.all(np.isfinite(s.map.poses))
+
+
+@pytest.mark.skipif(
+    not (LASER / "seattle-corrected.log.gz").is_file(),
+    reason=f"public laser logs not found at {LASER} (the ../shared folder beside the repo)",
+)
+def test_real_log_spacings_are_between_walls_that_face_each_other() -> None:
+    """A spacing is a width across a corridor or a room (the paper's Table 1), not the distance
+    between two parallel walls far apart along their direction, which the angle between them
+    dominates. Every spacing pair's walls overlap along their direction, are a corridor apart,
+    and the truth scores zero on them."""
+    from hitl_slam.evaluation import MIN_SPACING, facing_overlap
+    from hitl_slam.sim.scenario import fit_points
+
+    s = real_log_scenario(LASER / "seattle-corrected.log.gz", name="seattle", faults=lambda n: [])
+    world = to_world(s.truth, s.map.pose_of_point(), s.map.points)
+    spacings = [p for p in s.feature_pairs if p.kind == "spacing"]
+    assert len(spacings) >= 5
+    for p in spacings:
+        a, b = world[s.wall_of_point == p.i], world[s.wall_of_point == p.j]
+        fa, fb = fit_points(a), fit_points(b)
+        assert p.value >= MIN_SPACING
+        assert facing_overlap(a, b, fa) >= min(1.0, 0.5 * min(fa.extent, fb.extent))
+    assert s.errors(s.truth).mean_translational < 1e-9
+    angles = [p for p in s.feature_pairs if p.kind != "spacing"]
+    assert len(angles) >= 10

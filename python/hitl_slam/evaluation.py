@@ -80,6 +80,30 @@ class ScenarioResult:
         return 1.0 - self.inconsistency_truth / self.inconsistency_before
 
 
+MIN_SPACING = 0.5
+"""A spacing pair on a real log is at least this far apart [m]: a corridor's or a room's width,
+not two segments of one thick or doubled wall."""
+
+MIN_FACING_OVERLAP = 1.0
+"""... and its two walls face each other over at least this length [m] (or half the shorter
+wall): the paper's spacings are widths across a corridor or a room, and between corridors
+"constant along the length of the building". Two parallel walls tens of metres apart along
+their direction do not measure a spacing: their centres' distance to each other's line is
+dominated by the angle between them times that distance (0.3 deg over 57 m is 0.3 m), which
+the angle pairs already score."""
+
+
+def facing_overlap(points_a: FloatArray, points_b: FloatArray, fit_a: object) -> float:
+    """How long [m] two nearly parallel walls face each other: the overlap of their points'
+    extents (5th to 95th percentile) along ``fit_a``'s direction."""
+    phi = float(fit_a.phi)  # type: ignore[attr-defined]
+    direction = np.array([-math.sin(phi), math.cos(phi)])
+    pa, pb = points_a @ direction, points_b @ direction
+    lo = max(np.percentile(pa, 5), np.percentile(pb, 5))
+    hi = min(np.percentile(pa, 95), np.percentile(pb, 95))
+    return float(hi - lo)
+
+
 def real_log_scenario(
     path: Path,
     *,
@@ -95,8 +119,9 @@ def real_log_scenario(
     (pseudo) truth, the scans are the real ones, the map to repair is dead-reckoned from the
     true motions with odometry noise and ``faults(number of poses)``; walls and point labels
     come from RANSAC on the true map, and the known pairs are long walls that are parallel or
-    perpendicular there (within 1 degree), with their measured angle and spacing as the true
-    values. Scans are kept every ``min_travel`` metres or ``min_rotation`` radians (keyframes),
+    perpendicular there (within 1 degree), with their measured angle as the true value, and the
+    spacing of parallel walls that face each other (:data:`MIN_FACING_OVERLAP`,
+    :data:`MIN_SPACING`). Scans are kept every ``min_travel`` metres or ``min_rotation`` radians (keyframes),
     as SLAM front ends do."""
     from hitl_slam.io.carmen import read_carmen
     from hitl_slam.sim import FeaturePair, Floorplan, Lidar, Scenario
@@ -119,14 +144,23 @@ def real_log_scenario(
         length = math.hypot(walls[w, 2] - walls[w, 0], walls[w, 3] - walls[w, 1])
         if len(pts) >= 200 and length >= min_wall_length:
             fits[w] = fit_points(pts)
-    pairs = []
+    pairs, facing = [], []
     keys = sorted(fits)
     for x, i in enumerate(keys):
         for j in keys[x + 1 :]:
             ang = angle_between(fits[i], fits[j])
             if ang < 1.0:
                 pairs.append(FeaturePair(i, j, "parallel", ang))
-                pairs.append(FeaturePair(i, j, "spacing", spacing_between(fits[i], fits[j])))
+                spacing = FeaturePair(i, j, "spacing", spacing_between(fits[i], fits[j]))
+                # every parallel pair stays a candidate of the draw below, so the angle pairs
+                # drawn do not depend on which of them face each other
+                pairs.append(spacing)
+                overlap = facing_overlap(world[labels == i], world[labels == j], fits[i])
+                shorter = min(fits[i].extent, fits[j].extent)
+                if spacing.value >= MIN_SPACING and overlap >= min(
+                    MIN_FACING_OVERLAP, 0.5 * shorter
+                ):
+                    facing.append(spacing)
             elif ang > 89.0:
                 pairs.append(FeaturePair(i, j, "perpendicular", ang))
     if not pairs:
@@ -134,6 +168,10 @@ def real_log_scenario(
     if len(pairs) > max_pairs:
         pick = np.sort(rng.choice(len(pairs), size=max_pairs, replace=False))
         pairs = [pairs[k] for k in pick]
+    if len(facing) > max_pairs // 2:
+        pick = np.sort(np.random.default_rng([seed, 1]).choice(len(facing), max_pairs // 2, False))
+        facing = [facing[k] for k in pick]
+    pairs = [p for p in pairs if p.kind != "spacing"] + facing
     names = tuple(f"wall{w}" for w in range(len(walls)))
     plan = Floorplan(name, walls, names, tuple(pairs))
     return Scenario(
