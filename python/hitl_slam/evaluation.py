@@ -121,8 +121,8 @@ def real_log_scenario(
     come from RANSAC on the true map, and the known pairs are long walls that are parallel or
     perpendicular there (within 1 degree), with their measured angle as the true value, and the
     spacing of parallel walls that face each other (:data:`MIN_FACING_OVERLAP`,
-    :data:`MIN_SPACING`). Scans are kept every ``min_travel`` metres or ``min_rotation`` radians (keyframes),
-    as SLAM front ends do."""
+    :data:`MIN_SPACING`). Scans are kept every ``min_travel`` metres or ``min_rotation``
+    radians (keyframes), as SLAM front ends do."""
     from hitl_slam.io.carmen import read_carmen
     from hitl_slam.sim import FeaturePair, Floorplan, Lidar, Scenario
     from hitl_slam.sim.odometry import DEFAULT_NOISE, odometry
