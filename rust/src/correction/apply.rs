@@ -13,6 +13,7 @@ use super::interpretation::{interpret, span, Drawing, InterpretParams, Interpret
 use super::scans::{Row, Scans};
 use crate::error::{input, HitlError, Result};
 use crate::factors::{FactorClass, RelationMode};
+use crate::metric::{self, MetricParams};
 use crate::se2::{wrap_angle, Pose2};
 use crate::solver::{SolveReport, SolverParams};
 use crate::values::{Line2, Values};
@@ -67,6 +68,26 @@ pub struct ApplyParams {
     pub consistency_guard: f64,
     /// The standard normal quantile of `consistency_guard`.
     pub consistency_z: f64,
+    /// The inconsistency metric (docs/ALGORITHM.md §6) that chooses between a colocation and its
+    /// collinear reading when the chi2 guard lets both stand (§I.13); None = chi2 alone.
+    pub consistency_metric: Option<ConsistencyMetric>,
+}
+
+/// The inconsistency metric's rules and grid resolution, to compare two solutions of one map.
+#[derive(Clone, Copy, Debug)]
+pub struct ConsistencyMetric {
+    pub params: MetricParams,
+    pub resolution: f64,
+}
+
+impl ConsistencyMetric {
+    /// The inconsistency [m^2] of `scans` at `poses` on the grid covering them.
+    pub fn of(&self, scans: &Scans, poses: &[Pose2]) -> Result<f64> {
+        let flat: Vec<f64> = poses.iter().flat_map(|p| [p.x, p.y, p.theta]).collect();
+        let at = metric::Scans::new(&flat, scans.points(), scans.offsets())?;
+        let grid = at.covering_grid(self.resolution)?;
+        Ok(metric::inconsistency(&at, &grid, &self.params, false)?.total_m2)
+    }
 }
 
 /// An earlier correction that stays active: its relation and observations.
@@ -404,6 +425,23 @@ impl CorrectionEngine {
                 ));
                 h = alt;
                 solved = alt_solved;
+            } else if let Some(m) = &p.consistency_metric {
+                // The chi2 cannot tell where the chain between the passes is loose; the scans
+                // can: keep the reading under which they agree the better (§I.13).
+                let (first, second) = rayon::join(
+                    || m.of(scans, &solved.poses),
+                    || m.of(scans, &alt_solved.poses),
+                );
+                let (first, second) = (first?, second?);
+                if second < first {
+                    alt.notes.push(format!(
+                        "applied as collinear: the map is more consistent with the two passes on \
+                         one line than at one place ({first:.1} -> {second:.1} m^2), so their \
+                         positions along the wall are left to the robot's measurements"
+                    ));
+                    h = alt;
+                    solved = alt_solved;
+                }
             }
         }
         solved = self.settle_contradiction(scans, current, &h, solved, active, p)?;

@@ -27,6 +27,16 @@ impl Scans {
         })
     }
 
+    /// Robot-frame points `(P, 2)`, flat.
+    pub fn points(&self) -> &[f64] {
+        &self.points
+    }
+
+    /// `(N + 1,)`: pose i's points are rows `offsets[i]..offsets[i + 1]`.
+    pub fn offsets(&self) -> &[i64] {
+        &self.offsets
+    }
+
     pub fn num_poses(&self) -> usize {
         self.offsets.len() - 1
     }

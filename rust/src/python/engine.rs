@@ -12,11 +12,12 @@ use super::{
     to_py, PyGraph, PySolveReport,
 };
 use crate::correction::{
-    interpret, Active, ApplyParams, Chain, CorrectionEngine, CorrectionSpec, Drawing, HumanWeights,
-    InterpretParams, Interpretation, Row, Scans,
+    interpret, Active, ApplyParams, Chain, ConsistencyMetric, CorrectionEngine, CorrectionSpec,
+    Drawing, HumanWeights, InterpretParams, Interpretation, Row, Scans,
 };
 use crate::error::HitlError;
 use crate::factors::RelationMode;
+use crate::metric::MetricParams;
 use crate::se2::Pose2;
 use crate::solver::SolverParams;
 use crate::values::Values;
@@ -173,6 +174,14 @@ fn apply_params(
         colocation_guard: attr(config, "colocation_guard")?,
         consistency_guard: attr(config, "consistency_guard")?,
         consistency_z,
+        consistency_metric: Some(ConsistencyMetric {
+            params: MetricParams {
+                surface_cells: attr(config, "metric_surface_cells")?,
+                min_stop: attr(config, "metric_min_stop")?,
+                grazing_deg: attr(config, "metric_grazing_deg")?,
+            },
+            resolution: attr(config, "grid_resolution")?,
+        }),
     })
 }
 
