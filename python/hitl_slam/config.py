@@ -86,6 +86,12 @@ class Config:
     # same correction solved as collinear before it is applied as collinear (0 = off; 3.84 is
     # chi2 with one degree of freedom at 95%: the along-the-wall part is one constraint)
     colocation_guard: float = 3.84
+    # and where the chi2 lets the colocation stand, the one of the two solutions under which the
+    # scans agree the better (the inconsistency metric, §6) is kept: where the chain between
+    # the passes is loose (steps the scans could not check), the chi2 cannot contradict a
+    # person's "same stretch", which they judge to a few decimetres (docs/ALGORITHM.md §I.13;
+    # False: chi2 alone)
+    colocation_consistency: bool = True
     # odometry check: an odometry step whose two scans turn this far from it (squared
     # Mahalanobis distance of the heading, 1 dof, 99.9%; 0 = off) gets its heading variance
     # widened by the disagreement, so a correction puts its error there (a heading fault)

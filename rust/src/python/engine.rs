@@ -174,14 +174,18 @@ fn apply_params(
         colocation_guard: attr(config, "colocation_guard")?,
         consistency_guard: attr(config, "consistency_guard")?,
         consistency_z,
-        consistency_metric: Some(ConsistencyMetric {
-            params: MetricParams {
-                surface_cells: attr(config, "metric_surface_cells")?,
-                min_stop: attr(config, "metric_min_stop")?,
-                grazing_deg: attr(config, "metric_grazing_deg")?,
-            },
-            resolution: attr(config, "grid_resolution")?,
-        }),
+        consistency_metric: if attr::<bool>(config, "colocation_consistency")? {
+            Some(ConsistencyMetric {
+                params: MetricParams {
+                    surface_cells: attr(config, "metric_surface_cells")?,
+                    min_stop: attr(config, "metric_min_stop")?,
+                    grazing_deg: attr(config, "metric_grazing_deg")?,
+                },
+                resolution: attr(config, "grid_resolution")?,
+            })
+        } else {
+            None
+        },
     })
 }
 
