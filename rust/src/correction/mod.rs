@@ -11,7 +11,10 @@ mod explicit;
 mod interpretation;
 mod scans;
 
-pub use apply::{chi2_limit, Active, Applied, ApplyParams, Chain, ConsistencyMetric};
+pub use apply::{
+    chi2_limit, Active, Applied, ApplyParams, Chain, ConsistencyMetric,
+    COLOCATION_CONSISTENCY_MARGIN,
+};
 pub use backprop::backpropagate;
 pub use engine::{CorrectionEngine, CorrectionSpec, HumanWeights, PoseObservations};
 pub use explicit::{explicit_transform, Segment2};
