@@ -135,7 +135,7 @@ def test_real_log_spacings_are_between_walls_that_face_each_other() -> None:
         a, b = world[s.wall_of_point == p.i], world[s.wall_of_point == p.j]
         fa, fb = fit_points(a), fit_points(b)
         assert p.value >= MIN_SPACING
-        assert facing_overlap(a, b, fa) >= min(1.0, 0.5 * min(fa.extent, fb.extent))
+        assert facing_overlap(a, b, fa.phi) >= min(1.0, 0.5 * min(fa.extent, fb.extent))
     assert s.errors(s.truth).mean_translational < 1e-9
     angles = [p for p in s.feature_pairs if p.kind != "spacing"]
     assert len(angles) >= 10

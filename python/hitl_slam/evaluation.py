@@ -93,10 +93,9 @@ dominated by the angle between them times that distance (0.3 deg over 57 m is 0.
 the angle pairs already score."""
 
 
-def facing_overlap(points_a: FloatArray, points_b: FloatArray, fit_a: object) -> float:
+def facing_overlap(points_a: FloatArray, points_b: FloatArray, phi: float) -> float:
     """How long [m] two nearly parallel walls face each other: the overlap of their points'
-    extents (5th to 95th percentile) along ``fit_a``'s direction."""
-    phi = float(fit_a.phi)  # type: ignore[attr-defined]
+    extents (5th to 95th percentile) along the direction of a line with normal angle ``phi``."""
     direction = np.array([-math.sin(phi), math.cos(phi)])
     pa, pb = points_a @ direction, points_b @ direction
     lo = max(np.percentile(pa, 5), np.percentile(pb, 5))
@@ -138,12 +137,12 @@ def real_log_scenario(
     scans = [log.points[log.offsets[i] : log.offsets[i + 1]] for i in range(log.num_poses)]
     damaged = Map.from_poses_and_scans(estimate, scans, name=name, source=str(path))
     world = log.world_points(truth)
-    fits = {}
+    fits, wall_points = {}, {}
     for w in range(len(walls)):
         pts = world[labels == w]
         length = math.hypot(walls[w, 2] - walls[w, 0], walls[w, 3] - walls[w, 1])
         if len(pts) >= 200 and length >= min_wall_length:
-            fits[w] = fit_points(pts)
+            fits[w], wall_points[w] = fit_points(pts), pts
     pairs, facing = [], []
     keys = sorted(fits)
     for x, i in enumerate(keys):
@@ -155,7 +154,7 @@ def real_log_scenario(
                 # every parallel pair stays a candidate of the draw below, so the angle pairs
                 # drawn do not depend on which of them face each other
                 pairs.append(spacing)
-                overlap = facing_overlap(world[labels == i], world[labels == j], fits[i])
+                overlap = facing_overlap(wall_points[i], wall_points[j], fits[i].phi)
                 shorter = min(fits[i].extent, fits[j].extent)
                 if spacing.value >= MIN_SPACING and overlap >= min(
                     MIN_FACING_OVERLAP, 0.5 * shorter

@@ -4,7 +4,6 @@
 //! correction, and the guards of docs/ALGORITHM.md §I.3 and §I.6 that keep a result the robot's
 //! own measurements contradict from being applied silently.
 
-use std::borrow::Cow;
 use std::time::Instant;
 
 use super::backpropagate;
@@ -85,57 +84,55 @@ pub const COLOCATION_CONSISTENCY_MARGIN: f64 = 2.0;
 pub struct ConsistencyMetric {
     pub params: MetricParams,
     pub resolution: f64,
-    /// Each pass widened by this many times its own number of poses on either side (0: the
-    /// passes alone); negative: the whole map.
-    pub margin: f64,
+}
+
+/// The scans around a correction's passes, gathered once to score several solutions.
+struct Around {
+    poses: Vec<usize>,
+    points: Vec<f64>,
+    offsets: Vec<i64>,
 }
 
 impl ConsistencyMetric {
-    /// The poses whose scans are compared: each pass of `h` (`x_a`, `x_b`), widened by
-    /// [`Self::margin`] times its length on either side; None for the whole map.
-    pub fn poses_of(&self, h: &Interpretation, num_poses: usize) -> Option<Vec<usize>> {
-        if self.margin < 0.0 {
-            return None;
-        }
-        let mut keep = vec![false; num_poses];
+    /// The scans of each pass of `h` (`x_a`, `x_b`) widened by
+    /// [`COLOCATION_CONSISTENCY_MARGIN`] times its length on either side.
+    fn around(scans: &Scans, h: &Interpretation) -> Around {
+        let n = scans.num_poses();
+        let mut keep = vec![false; n];
         for pass in [&h.x_a, &h.x_b] {
             let (Some(&first), Some(&last)) = (pass.iter().min(), pass.iter().max()) else {
                 continue;
             };
-            let widen = (self.margin * (last - first + 1) as f64).round() as i64;
+            let widen = (COLOCATION_CONSISTENCY_MARGIN * (last - first + 1) as f64).round() as i64;
             let lo = (first - widen).max(0) as usize;
-            let hi = ((last + widen) as usize).min(num_poses - 1);
+            let hi = ((last + widen) as usize).min(n - 1);
             keep[lo..=hi].iter_mut().for_each(|k| *k = true);
         }
-        Some((0..num_poses).filter(|&i| keep[i]).collect())
+        let (all, off) = (scans.points(), scans.offsets());
+        let poses: Vec<usize> = (0..n).filter(|&i| keep[i]).collect();
+        let mut points = Vec::new();
+        let mut offsets = Vec::with_capacity(poses.len() + 1);
+        offsets.push(0i64);
+        for &i in &poses {
+            let (a, b) = (off[i] as usize, off[i + 1] as usize);
+            points.extend_from_slice(&all[2 * a..2 * b]);
+            offsets.push((points.len() / 2) as i64);
+        }
+        Around {
+            poses,
+            points,
+            offsets,
+        }
     }
 
-    /// The inconsistency [m^2] of the scans of `subset` (None: all) at `poses`, on the grid
-    /// covering them.
-    pub fn of(&self, scans: &Scans, poses: &[Pose2], subset: Option<&[usize]>) -> Result<f64> {
-        let (flat, points, offsets): (Vec<f64>, Cow<'_, [f64]>, Cow<'_, [i64]>) = match subset {
-            None => (
-                poses.iter().flat_map(|p| [p.x, p.y, p.theta]).collect(),
-                Cow::Borrowed(scans.points()),
-                Cow::Borrowed(scans.offsets()),
-            ),
-            Some(ids) => {
-                let (all, off) = (scans.points(), scans.offsets());
-                let mut flat = Vec::with_capacity(3 * ids.len());
-                let mut points = Vec::new();
-                let mut offsets = Vec::with_capacity(ids.len() + 1);
-                offsets.push(0i64);
-                for &i in ids {
-                    let p = poses[i];
-                    flat.extend([p.x, p.y, p.theta]);
-                    let (a, b) = (off[i] as usize, off[i + 1] as usize);
-                    points.extend_from_slice(&all[2 * a..2 * b]);
-                    offsets.push((points.len() / 2) as i64);
-                }
-                (flat, Cow::Owned(points), Cow::Owned(offsets))
-            }
-        };
-        let at = metric::Scans::new(&flat, &points, &offsets)?;
+    /// The inconsistency [m^2] of the scans `around` at `poses`, on the grid covering them.
+    fn of(&self, around: &Around, poses: &[Pose2]) -> Result<f64> {
+        let flat: Vec<f64> = around
+            .poses
+            .iter()
+            .flat_map(|&i| [poses[i].x, poses[i].y, poses[i].theta])
+            .collect();
+        let at = metric::Scans::new(&flat, &around.points, &around.offsets)?;
         let grid = at.covering_grid(self.resolution)?;
         Ok(metric::inconsistency(&at, &grid, &self.params, false)?.total_m2)
     }
@@ -479,10 +476,10 @@ impl CorrectionEngine {
             } else if let Some(m) = &p.consistency_metric {
                 // The chi2 cannot tell where the chain between the passes is loose; the scans
                 // can: keep the reading under which they agree the better (§I.13).
-                let subset = m.poses_of(&h, solved.poses.len());
+                let around = ConsistencyMetric::around(scans, &h);
                 let (first, second) = rayon::join(
-                    || m.of(scans, &solved.poses, subset.as_deref()),
-                    || m.of(scans, &alt_solved.poses, subset.as_deref()),
+                    || m.of(&around, &solved.poses),
+                    || m.of(&around, &alt_solved.poses),
                 );
                 let (first, second) = (first?, second?);
                 if second < first {

@@ -14,7 +14,6 @@ use super::{
 use crate::correction::{
     interpret, Active, ApplyParams, Chain, ConsistencyMetric, CorrectionEngine, CorrectionSpec,
     Drawing, HumanWeights, InterpretParams, Interpretation, Row, Scans,
-    COLOCATION_CONSISTENCY_MARGIN,
 };
 use crate::error::HitlError;
 use crate::factors::RelationMode;
@@ -183,7 +182,6 @@ fn apply_params(
                     grazing_deg: attr(config, "metric_grazing_deg")?,
                 },
                 resolution: attr(config, "grid_resolution")?,
-                margin: COLOCATION_CONSISTENCY_MARGIN,
             })
         } else {
             None
