@@ -88,6 +88,32 @@ def test_long_colocation_of_diverging_copies_ends_on_one_line(seed: int) -> None
     assert np.abs(d).max() < math.radians(0.3)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_different_stretches_are_left_to_the_solves_not_to_their_lengths(seed: int) -> None:
+    # The same long colocation over different stretches. Since 2026-11-28 the stretches' lengths
+    # alone no longer make it collinear (docs/ALGORITHM.md §I.3: in the full evaluation 32% of
+    # the corrections that rule made collinear made their map worse, against 16% of all): both
+    # readings are solved, and the along-the-wall part is dropped because it contradicts the
+    # odometry, with both figures in the note. `colocation_length_rule` restores the old rule.
+    rng = np.random.default_rng(500 + seed)
+    w = copies_world([(0.0, 0.0, 0.0), (0.0, 0.1, math.radians(5.0))], seed)
+    c0, c1 = w.copy_of(WALL_A, 0), w.copy_of(WALL_A, 1)
+    a = careful_drawing(c0, rng, offset=(0.0, 0.05), span=(0.1, 0.6))
+    b = careful_drawing(c1, rng, offset=(0.0, 0.05), span=(0.35, 0.95))
+    drawn = DrawnCorrection.make(a, b, Mode.COLOCATION)
+    result = apply_correction(w.map, w.map.poses, drawn, (), DEFAULT)
+    notes = " ".join(result.interpretation.notes)
+    assert result.interpretation.mode is Mode.COLLINEAR
+    assert "saw different stretches" not in notes, notes
+    assert "positions along the wall contradict the odometry" in notes, notes
+    old = apply_correction(
+        w.map, w.map.poses, drawn, (), DEFAULT.replace(colocation_length_rule=True)
+    )
+    assert old.interpretation.mode is Mode.COLLINEAR
+    if seed == 1:  # its two stretches differ by more than the rule's tolerance
+        assert any("saw different stretches" in n for n in old.interpretation.notes)
+
+
 def _segment_over(points: np.ndarray) -> list[list[float]]:
     """A segment through ``points`` along their line, 10th to 90th percentile."""
     centre = points.mean(axis=0)

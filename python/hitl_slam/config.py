@@ -103,6 +103,11 @@ class Config:
     # then partly taken out where it came in. Off: it made fewer corrections worse in the full
     # evaluation but Freiburg 079 worse in the standard one (docs/ALGORITHM.md §I.5)
     odometry_fuse: float = 0.0
+    # a colocation whose two passes saw stretches of the wall differing in length by more than
+    # 10% (+ 2 sigma_h) is applied as collinear before any solve (the first rule of
+    # docs/ALGORITHM.md §I.3). Off: the two readings are solved and the chi2 guard and the
+    # scans (§I.13) choose, which made fewer corrections worse in the full evaluation
+    colocation_length_rule: bool = False
     # consistency guard: a correction after which the map's own measurements (its relative-pose
     # factors) score a chi2 above this quantile of chi2 with 3 x edges dof is tried again with
     # the passes nearest the drawings, then refused with the figures (0 = off)

@@ -319,12 +319,14 @@ def apply_correction(
     says more than "same line": that the two observation sets are the same stretch of it (their
     centres coincide). When the two passes saw different stretches of a wall (the usual case on
     a long wall), that along-the-wall part is false, and forcing it bends the map elsewhere. So
-    a colocation whose two observation sets differ in length by more than 10% (plus
-    ``2 sigma_h``) is applied as collinear; otherwise it is also solved as collinear, and if the
-    colocation costs the robot's own measurements (the map's relative-pose factors) more than
-    ``colocation_guard`` above the collinear solution's chi2, the along-the-wall part
-    contradicts them and the collinear solution is applied instead. Either way a note in the
-    interpretation gives the figures."""
+    a colocation is also solved as collinear, and if the colocation costs the robot's own
+    measurements (the map's relative-pose factors) more than ``colocation_guard`` above the
+    collinear solution's chi2, the along-the-wall part contradicts them and the collinear
+    solution is applied instead; where the chi2 cannot tell, the scans around the passes decide
+    (``config.colocation_consistency``). With ``config.colocation_length_rule`` a colocation
+    whose two observation sets differ in length by more than 10% (plus ``2 sigma_h``) is
+    applied as collinear before any solve (off by default, docs/ALGORITHM.md §I.3). Either way
+    a note in the interpretation gives the figures."""
     from hitl_slam.interpret import checked_drawing, from_core, map_scans
     from hitl_slam.odometry_check import checked_map
 

@@ -71,6 +71,10 @@ pub struct ApplyParams {
     /// The inconsistency metric (docs/ALGORITHM.md §6) that chooses between a colocation and its
     /// collinear reading when the chi2 guard lets both stand (§I.13); None = chi2 alone.
     pub consistency_metric: Option<ConsistencyMetric>,
+    /// Whether a colocation whose passes saw stretches of different lengths is applied as
+    /// collinear before any solve (`Config.colocation_length_rule`, off by default since the
+    /// two solves decide better; docs/ALGORITHM.md §I.3).
+    pub length_rule: bool,
 }
 
 /// How far around its passes a colocation's two readings are compared (§I.13): each pass
@@ -424,7 +428,7 @@ impl CorrectionEngine {
         let (mut h, before) = (h?, before?);
         let time_interpret = t0.elapsed().as_secs_f64();
         let sigma_h = p.interpret.sigma_h;
-        if h.mode == RelationMode::Colocation && p.colocation_guard > 0.0 {
+        if h.mode == RelationMode::Colocation && p.colocation_guard > 0.0 && p.length_rule {
             let len_a = Self::stretch(scans, current, &h.s_a)?;
             let len_b = Self::stretch(scans, current, &h.s_b)?;
             let tolerance = 0.1 * len_a.max(len_b) + 2.0 * sigma_h;

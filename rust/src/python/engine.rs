@@ -186,6 +186,7 @@ fn apply_params(
         } else {
             None
         },
+        length_rule: attr(config, "colocation_length_rule")?,
     })
 }
 
