@@ -30,9 +30,13 @@ from hitl_slam.evaluation import LASER, _nanmean
 
 if TYPE_CHECKING:
     from hitl_slam.corrections import Interpretation
-    from hitl_slam.session import Session
+    from hitl_slam.session import Applier, Session
+    from hitl_slam.sim.careful import CarefulPerson
     from hitl_slam.sim.human import Inconsistency, Visit
     from hitl_slam.sim.scenario import Scenario
+
+    ApplierFactory = Callable[[Scenario, CarefulPerson], Applier]
+    """Makes the applier of one run from its damaged scenario and its person."""
 
 __all__ = [
     "FULL_MAPS",
@@ -195,13 +199,16 @@ def evaluate_run(
     config: Config = DEFAULT,
     on_end: Callable[[Scenario, Session], object] | None = None,
     align: bool = True,
+    applier: ApplierFactory | None = None,
 ) -> Run:
     """Damages map ``label`` by fault model ``fault`` and lets a careful person with endpoint
     noise ``noise_m`` repair it, scoring every drawing. With ``align``, once they have drawn
     what they could (or ``max_corrections``), they align the map with its scans
     (:meth:`Session.align`), which is scored too. ``on_end(scenario, session)`` is called
     with the damaged scenario and the session at its last state, before the session closes
-    (benches/scan_alignment.py starts from there)."""
+    (benches/scan_alignment.py starts from there). ``applier(scenario, person)``, if given,
+    makes what computes each correction instead of :func:`hitl_slam.pipeline.apply_correction`
+    (benches/harm_oracle.py: one that knows the truth)."""
     from hitl_slam.metrics import ate, inconsistency
     from hitl_slam.session import Session
     from hitl_slam.sim.careful import CarefulPerson
@@ -231,7 +238,9 @@ def evaluate_run(
         return float(ate(poses, truth, align=True)), angle(poses), inc
 
     person = CarefulPerson(scenario, person_rng, endpoint_noise=noise_m, config=config)
-    session = Session.new(m, config=config)
+    session = Session.new(
+        m, config=config, applier=None if applier is None else applier(scenario, person)
+    )
     drawings: list[Drawing] = []
     alignment, before_alignment = "", None
     poses = np.array(session.poses)
@@ -318,9 +327,9 @@ def evaluate_run(
     )
 
 
-def _run_one(args: tuple[str, str, float, int, bool]) -> Run:
-    label, fault, noise, seed, align = args
-    return evaluate_run(label, fault, noise, seed=seed, align=align)
+def _run_one(args: tuple[str, str, float, int, bool, ApplierFactory | None]) -> Run:
+    label, fault, noise, seed, align, applier = args
+    return evaluate_run(label, fault, noise, seed=seed, align=align, applier=applier)
 
 
 def run_full(
@@ -332,15 +341,18 @@ def run_full(
     jobs: int = 1,
     log: Callable[[Run], None] = lambda _r: None,
     align: bool = True,
+    applier: ApplierFactory | None = None,
 ) -> list[Run]:
-    """Every (map, fault model, noise) run, in that order (``jobs`` processes at once)."""
+    """Every (map, fault model, noise) run, in that order (``jobs`` processes at once), each
+    with ``applier`` as :func:`evaluate_run` (with ``jobs`` > 1 it must pickle: a module-level
+    function, or a ``functools.partial`` of one)."""
     from hitl_slam.sim.fault_models import FAULT_MODELS
 
     for label in maps:
         if label not in FULL_MAPS:
             raise InputError(f"unknown map {label!r}; the maps are: {', '.join(FULL_MAPS)}")
     work = [
-        (label, fault, noise, seed, align)
+        (label, fault, noise, seed, align, applier)
         for label in maps
         for fault in (faults or list(FAULT_MODELS))
         for noise in noises
