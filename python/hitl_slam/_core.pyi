@@ -241,6 +241,7 @@ class CorrectionEngine:
         k1: float,
         k2: float,
         average_points: bool = False,
+        even_centroids: bool = False,
         method: str = "lm",
         max_iterations: int = 100,
         relative_tolerance: float = 1e-6,

@@ -198,6 +198,7 @@ def solve_all(
             k1=config.k1,
             k2=config.k2,
             average_points=config.average_points,
+            even_centroids=config.colocation_even_centroids,
             max_iterations=config.max_iterations,
             relative_tolerance=config.relative_tolerance,
             absolute_tolerance=config.absolute_tolerance,

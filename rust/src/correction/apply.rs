@@ -386,7 +386,7 @@ impl CorrectionEngine {
             .map(|c| {
                 let c = spec(scans, c.mode, &c.s_a, &c.s_b)?;
                 values.lines = vec![fit_line_at(poses, &c.a)?, fit_line_at(poses, &c.b)?];
-                let factors = c.factors(0, &p.weights)?;
+                let factors = c.factors(0, &p.weights, Some(poses))?;
                 let relation = factors.last().ok_or_else(|| {
                     HitlError::Solver("internal: a correction without a relation factor".into())
                 })?;

@@ -10,6 +10,7 @@
 //! [`PATTERN_CACHE`] sparsity patterns keyed by the human part's structure.
 
 use super::apply::Chain;
+use super::centroid::along_wall_weights;
 use crate::error::{input, HitlError, Result};
 use crate::factors::{CentroidShare, Factor, PointsToLineFactor, RelationFactor, RelationMode};
 use crate::graph::FactorGraph;
@@ -32,13 +33,17 @@ pub struct CorrectionSpec {
     pub b: Vec<PoseObservations>,
 }
 
-/// The weights of the human factors (`Config.sigma_f`, `k1`, `k2`, `average_points`).
+/// The weights of the human factors (`Config.sigma_f`, `k1`, `k2`, `average_points`,
+/// `colocation_even_centroids`).
 #[derive(Clone, Copy, Debug)]
 pub struct HumanWeights {
     pub sigma_f: f64,
     pub k1: f64,
     pub k2: f64,
     pub average_points: bool,
+    /// A colocation's centroids weigh every stretch of the wall alike
+    /// ([`super::centroid::along_wall_weights`], docs/ALGORITHM.md §I.15).
+    pub even_centroids: bool,
 }
 
 impl HumanWeights {
@@ -105,8 +110,15 @@ impl CorrectionSpec {
     }
 
     /// The factors of this correction (docs/ALGORITHM.md §4.3) over lines `la` and `la + 1`: one
-    /// point-to-line factor per observing pose and segment, then the relation R_p.
-    pub fn factors(&self, la: usize, w: &HumanWeights) -> Result<Vec<Box<dyn Factor>>> {
+    /// point-to-line factor per observing pose and segment, then the relation R_p. `poses`:
+    /// where the solve starts, which places a colocation's points along its wall when
+    /// `w.even_centroids` (without them, or for other modes, every point counts alike).
+    pub fn factors(
+        &self,
+        la: usize,
+        w: &HumanWeights,
+        poses: Option<&[Pose2]>,
+    ) -> Result<Vec<Box<dyn Factor>>> {
         let lb = la + 1;
         let count = |set: &[PoseObservations]| set.iter().map(|(_, p)| p.len()).sum::<usize>();
         let (wa, wb) = (
@@ -115,14 +127,32 @@ impl CorrectionSpec {
         );
         let mut factors: Vec<Box<dyn Factor>> = Vec::with_capacity(self.num_factors());
         let mut shares = Vec::with_capacity(self.a.len() + self.b.len());
+        let even = match poses {
+            Some(x) if w.even_centroids && self.mode == RelationMode::Colocation => Some((
+                along_wall_weights(x, &self.a),
+                along_wall_weights(x, &self.b),
+            )),
+            _ => None,
+        };
         for (set, weight, is_a) in [(&self.a, wa, true), (&self.b, wb, false)] {
-            for (i, pts) in set {
-                let sum = pts
-                    .iter()
-                    .fold([0.0, 0.0], |s, p| [s[0] + p[0], s[1] + p[1]]);
-                let share = CentroidShare {
-                    count: pts.len() as f64,
-                    sum,
+            for (k, (i, pts)) in set.iter().enumerate() {
+                let along = even
+                    .as_ref()
+                    .map(|(ea, eb)| if is_a { &ea[k] } else { &eb[k] });
+                let share = match along {
+                    Some(ws) => pts
+                        .iter()
+                        .zip(ws)
+                        .fold(CentroidShare::default(), |s, (p, &wk)| CentroidShare {
+                            count: s.count + wk,
+                            sum: [s.sum[0] + wk * p[0], s.sum[1] + wk * p[1]],
+                        }),
+                    None => CentroidShare {
+                        count: pts.len() as f64,
+                        sum: pts
+                            .iter()
+                            .fold([0.0, 0.0], |s, p| [s[0] + p[0], s[1] + p[1]]),
+                    },
                 };
                 shares.push(if is_a {
                     (*i, share, CentroidShare::default())
@@ -290,7 +320,7 @@ impl CorrectionEngine {
         for (k, c) in corrections.iter().enumerate() {
             c.validate(n)
                 .map_err(|e| HitlError::Input(format!("correction {k}: {e}")))?;
-            human.extend(c.factors(2 * k, weights)?);
+            human.extend(c.factors(2 * k, weights, Some(&values.poses))?);
             lines.push(fit_line_at(&values.poses, &c.a)?);
             lines.push(fit_line_at(&values.poses, &c.b)?);
         }
@@ -374,6 +404,7 @@ mod tests {
             k1: 1e6,
             k2: 1e7,
             average_points: false,
+            even_centroids: true,
         }
     }
 

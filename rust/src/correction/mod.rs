@@ -6,6 +6,7 @@
 
 mod apply;
 mod backprop;
+pub mod centroid;
 pub mod engine;
 mod explicit;
 mod interpretation;

@@ -169,6 +169,7 @@ fn apply_params(
             k1: attr(config, "k1")?,
             k2: attr(config, "k2")?,
             average_points: attr(config, "average_points")?,
+            even_centroids: attr(config, "colocation_even_centroids")?,
         },
         solver,
         colocation_guard: attr(config, "colocation_guard")?,
@@ -572,8 +573,8 @@ impl PyCorrectionEngine {
     /// `*_points[k]`. Lines start at the TLS fit of their observations at `poses`. Returns
     /// `(poses, lines (2K, 2) rows (phi, rho), report)`. The GIL is released while solving.
     #[pyo3(signature = (
-        poses, corrections, *, sigma_f, k1, k2, average_points = false, method = "lm",
-        max_iterations = 100, relative_tolerance = 1e-6, absolute_tolerance = 1e-6,
+        poses, corrections, *, sigma_f, k1, k2, average_points = false,
+        even_centroids = false, method = "lm", max_iterations = 100, relative_tolerance = 1e-6, absolute_tolerance = 1e-6,
         lambda_initial = 1e-5, robust = None, watchdog_steps = 3
     ))]
     #[allow(clippy::too_many_arguments, clippy::type_complexity)]
@@ -586,6 +587,7 @@ impl PyCorrectionEngine {
         k1: f64,
         k2: f64,
         average_points: bool,
+        even_centroids: bool,
         method: &str,
         max_iterations: usize,
         relative_tolerance: f64,
@@ -629,6 +631,7 @@ impl PyCorrectionEngine {
             k1,
             k2,
             average_points,
+            even_centroids,
         };
         let engine = &mut self.inner;
         let (values, report) = py

@@ -510,11 +510,13 @@ impl PyGraph {
                 k1,
                 k2,
                 average_points,
+                even_centroids: false,
             };
             weights.validate()?;
-            // Build every factor first so that a bad input adds nothing.
+            // Build every factor first so that a bad input adds nothing. (No poses here: every
+            // point counts alike in the centroids, as the paper's R_p.)
             let la = graph.num_lines();
-            let factors = spec.factors(la, &weights)?;
+            let factors = spec.factors(la, &weights, None)?;
             graph.add_line();
             let lb = graph.add_line();
             for f in factors {
