@@ -23,10 +23,15 @@ def _world(seed: int, shift: float) -> tuple[Map, np.ndarray, np.ndarray, np.nda
     error). Returns the map, the truth and the two passes' (pose, point) rows."""
     rng = np.random.default_rng(seed)
     out = [(x, 0.0, 0.0) for x in np.arange(0.0, 4.01, 0.25)]
-    loop = [(4.5, -1.0, -np.pi / 2), (4.0, -2.5, np.pi), (0.0, -2.5, np.pi), (-0.5, -1.0, np.pi / 2)]
+    loop = [
+        (4.5, -1.0, -np.pi / 2),
+        (4.0, -2.5, np.pi),
+        (0.0, -2.5, np.pi),
+        (-0.5, -1.0, np.pi / 2),
+    ]
     back = [(x, 0.0, 0.0) for x in np.arange(0.0, 4.01, 0.25)]
     truth = np.array(out + loop + back, dtype=np.float64)
-    n1, n2 = len(out), len(back)
+    n1 = len(out)
     first_b = n1 + len(loop)
     scans, rows_a, rows_b = [], [], []
     for k, (x, y, th) in enumerate(truth):
