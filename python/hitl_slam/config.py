@@ -68,9 +68,9 @@ class Config:
     k1: float = 1e6  # [1/m^2]
     k2: float = 1e7  # [1/rad^2]
     average_points: bool = False
-    # a colocation's centroids weigh every 10 cm of wall alike, not every laser point
-    # (docs/ALGORITHM.md §I.15); False: the paper's plain centroids
-    colocation_even_centroids: bool = True
+    # True: a colocation's centroids weigh each point by the length of wall it stands for
+    # (docs/ALGORITHM.md §I.15: measured, not kept); False: the paper's plain centroids
+    colocation_even_centroids: bool = False
     # solver for corrections
     max_iterations: int = 50
     relative_tolerance: float = 1e-6
