@@ -61,6 +61,32 @@ class CorrectionResult:
     time_interpret_s: float
     time_solve_s: float
 
+    @classmethod
+    def solved(
+        cls,
+        poses: FloatArray,
+        interpretation: Interpretation,
+        lines: FloatArray,
+        transform: FloatArray,
+        report: _core.SolveReport,
+        times: tuple[float, float, float],
+    ) -> CorrectionResult:
+        """The result of a joint solve's ``report``; ``times``: (total, interpretation, solve)
+        [s]."""
+        return cls(
+            poses=poses,
+            interpretation=interpretation,
+            lines=lines,
+            transform=transform,
+            iterations=report.iterations,
+            initial_chi2=report.initial_chi2,
+            final_chi2=report.final_chi2,
+            termination=report.termination,
+            time_s=times[0],
+            time_interpret_s=times[1],
+            time_solve_s=times[2],
+        )
+
 
 def chain_variances(map: Map, poses: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
     """Rotational and isotropic translational variance of each chain edge k -> k+1 (N-1,),
@@ -375,16 +401,6 @@ def apply_correction(
     for note in h.notes:
         logger.debug("correction: %s", note)
     t2 = time.perf_counter()
-    return CorrectionResult(
-        poses=new_poses,
-        interpretation=h,
-        lines=lines,
-        transform=transform,
-        iterations=report.iterations,
-        initial_chi2=report.initial_chi2,
-        final_chi2=report.final_chi2,
-        termination=report.termination,
-        time_s=t2 - t0,
-        time_interpret_s=t_interpret,
-        time_solve_s=t_core - t_interpret,
+    return CorrectionResult.solved(
+        new_poses, h, lines, transform, report, (t2 - t0, t_interpret, t_core - t_interpret)
     )

@@ -139,18 +139,8 @@ def oracle_applier(
         moved, transform = explicit_and_backpropagate(g, current, h)
         new, lines, report = solve_all(g, [*active, h], config, start=moved)
         t2 = time.perf_counter()
-        return CorrectionResult(
-            poses=new,
-            interpretation=h,
-            lines=lines,
-            transform=transform,
-            iterations=report.iterations,
-            initial_chi2=report.initial_chi2,
-            final_chi2=report.final_chi2,
-            termination=report.termination,
-            time_s=t2 - t0,
-            time_interpret_s=t1 - t0,
-            time_solve_s=t2 - t1,
+        return CorrectionResult.solved(
+            new, h, lines, transform, report, (t2 - t0, t1 - t0, t2 - t1)
         )
 
     return apply
