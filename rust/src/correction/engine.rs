@@ -136,24 +136,20 @@ impl CorrectionSpec {
         };
         for (set, weight, is_a) in [(&self.a, wa, true), (&self.b, wb, false)] {
             for (k, (i, pts)) in set.iter().enumerate() {
+                // Each point's weight in its centroid: 1, or the wall it stands for.
                 let along = even
                     .as_ref()
                     .map(|(ea, eb)| if is_a { &ea[k] } else { &eb[k] });
-                let share = match along {
-                    Some(ws) => pts
-                        .iter()
-                        .zip(ws)
-                        .fold(CentroidShare::default(), |s, (p, &wk)| CentroidShare {
+                let share = pts
+                    .iter()
+                    .enumerate()
+                    .fold(CentroidShare::default(), |s, (j, p)| {
+                        let wk = along.map_or(1.0, |ws| ws[j]);
+                        CentroidShare {
                             count: s.count + wk,
                             sum: [s.sum[0] + wk * p[0], s.sum[1] + wk * p[1]],
-                        }),
-                    None => CentroidShare {
-                        count: pts.len() as f64,
-                        sum: pts
-                            .iter()
-                            .fold([0.0, 0.0], |s, p| [s[0] + p[0], s[1] + p[1]]),
-                    },
-                };
+                        }
+                    });
                 shares.push(if is_a {
                     (*i, share, CentroidShare::default())
                 } else {

@@ -574,7 +574,8 @@ impl PyCorrectionEngine {
     /// `(poses, lines (2K, 2) rows (phi, rho), report)`. The GIL is released while solving.
     #[pyo3(signature = (
         poses, corrections, *, sigma_f, k1, k2, average_points = false,
-        even_centroids = false, method = "lm", max_iterations = 100, relative_tolerance = 1e-6, absolute_tolerance = 1e-6,
+        even_centroids = false, method = "lm", max_iterations = 100,
+        relative_tolerance = 1e-6, absolute_tolerance = 1e-6,
         lambda_initial = 1e-5, robust = None, watchdog_steps = 3
     ))]
     #[allow(clippy::too_many_arguments, clippy::type_complexity)]
