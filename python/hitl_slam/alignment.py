@@ -19,11 +19,19 @@ guards judge the result without the truth, each refusing with its figures (nothi
 - consistency (``Config.align_consistency_guard``): the aligned map's inconsistency (§6) must be
   lower than the map's before it (the point of aligning with the scans; the odometry guard keeps
   a map that flew apart, whose overlaps and so inconsistency shrink, from passing this one).
+
+Before those, the solve itself is chosen among candidates (how far the person's statements may
+yield to the scans, :func:`relation_candidates`): a candidate that overrules more than
+``Config.align_max_overruled`` of the statements (holds them off by more than
+:data:`OVERRULED_DEG` or :data:`OVERRULED_M`) is not the scans refining the map but a wrong
+match folding it, and is set aside; where every yielding candidate is, the statements are held
+firm (docs/ALGORITHM.md §I.16).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -33,17 +41,41 @@ from numpy.typing import NDArray
 
 from hitl_slam._core import SolveReport
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.corrections import Interpretation
+from hitl_slam.corrections import Interpretation, Mode
 from hitl_slam.errors import InputError, SolverError
 from hitl_slam.map import InformationSource, Map
 
-__all__ = ["CHI2_3_999", "Alignment", "AlignmentRefused", "align", "aligned_map", "contradicted"]
+__all__ = [
+    "CHI2_3_999",
+    "OVERRULED_DEG",
+    "OVERRULED_M",
+    "Alignment",
+    "AlignmentRefused",
+    "align",
+    "aligned_map",
+    "contradicted",
+    "overruled",
+]
 
 FloatArray = NDArray[np.float64]
+
+logger = logging.getLogger(__name__)
 
 CHI2_3_999 = 16.266
 """The 99.9% quantile of chi2 with 3 degrees of freedom: a step beyond it contradicts the
 odometry."""
+
+OVERRULED_DEG = 5.0
+"""[deg] A statement whose two lines the aligned solve leaves further apart in angle than this is
+overruled by the scans: a statement on a neighbouring pass yields by centimetres and a fraction
+of a degree, a fold of the map by degrees (docs/ALGORITHM.md §I.16)."""
+
+OVERRULED_M = 0.5
+"""[m] Likewise for the offset between the two observation sets' centres (across the line for a
+collinear statement, anywhere for a colocation)."""
+
+FIRM = 0.0
+"""The Phi of relations held firm (no dynamic covariance scaling): the last candidate."""
 
 _MIN_POINTS_PER_SCAN = 20
 """Fewer laser points per scan on average than this and there is nothing to match."""
@@ -74,6 +106,7 @@ class Alignment:
     initial_chi2: float
     final_chi2: float
     time_s: float
+    set_aside: tuple[str, ...] = ()  # the candidates that overruled too many statements
 
 
 def aligned_config(config: Config, relation_dcs: float | None = None) -> Config:
@@ -89,6 +122,32 @@ def relation_candidates(config: Config) -> tuple[float, ...]:
     second witness (``config.align_relation_dcs``: a statement they contradict yields to
     them), then the relations as firm as in every other solve (``config.relation_dcs``)."""
     return tuple(dict.fromkeys((config.align_relation_dcs, config.relation_dcs)))
+
+
+def overruled(
+    map: Map, poses: FloatArray, lines: FloatArray, active: Sequence[Interpretation]
+) -> int:
+    """How many of the statements in ``active`` the solve (``poses`` and its ``lines``,
+    ``(2K, 2)`` ``(phi, rho)``, a then b per correction) holds off by more than
+    :data:`OVERRULED_DEG` between their lines or :data:`OVERRULED_M` between their observation
+    sets' centres (collinear: across line a; colocation: anywhere; the residual of the
+    relation, docs/ALGORITHM.md §4.3)."""
+    phis = np.asarray(lines, dtype=np.float64).reshape(-1, 2)[:, 0]
+    count = 0
+    for k, h in enumerate(active):
+        pa, pb = float(phis[2 * k]), float(phis[2 * k + 1])
+        e = pb - pa - (np.pi / 2 if h.mode is Mode.PERPENDICULAR else 0.0)
+        e = (e + np.pi / 2) % np.pi - np.pi / 2  # lines are undirected
+        off = 0.0
+        if h.mode in (Mode.COLLINEAR, Mode.COLOCATION):
+            ca, cb = (map.observed_points(s, poses).mean(axis=0) for s in (h.s_a, h.s_b))
+            d = cb - ca
+            if h.mode is Mode.COLLINEAR:
+                off = abs(float(np.cos(pa) * d[0] + np.sin(pa) * d[1]))
+            else:
+                off = float(np.hypot(d[0], d[1]))
+        count += abs(np.degrees(e)) > OVERRULED_DEG or off > OVERRULED_M
+    return count
 
 
 def contradicted(map: Map, poses: FloatArray) -> tuple[int, int]:
@@ -182,20 +241,45 @@ def align(
     # How far a statement yields to the scans is decided by the scans too: each candidate Phi
     # is solved and the more consistent map kept. Yielding lets passes the statements held a
     # few centimetres apart meet, but where the front end kept few loop closures it can also
-    # let part of the map turn about them (docs/ALGORITHM.md §I.11).
+    # let part of the map turn about them (docs/ALGORITHM.md §I.11); and where one of its
+    # matches is wrong by degrees, the map folds there and overrules many statements at once,
+    # while its inconsistency falls (a folded map overlaps less): such a candidate is set
+    # aside, and if every one is, the statements are held firm (§I.16).
     best: tuple[float, float, FloatArray, FloatArray, SolveReport] | None = None
-    for phi in relation_candidates(config) if active else (config.align_relation_dcs,):
+    limit = config.align_max_overruled * len(active)
+    candidates = relation_candidates(config) if active else (config.align_relation_dcs,)
+    fallback = bool(active) and FIRM not in candidates
+    setaside: list[str] = []
+    for phi in (*candidates, FIRM) if fallback else candidates:
+        if fallback and phi == FIRM and best is not None:
+            break  # firm only where every yielding candidate was set aside
         x, lines_x, report_x = solve_all(
             graph, active, aligned_config(config, phi), start=graph.poses
         )
         x = np.asarray(x, dtype=np.float64)
         if x.shape != (n, 3) or not np.isfinite(x).all():
             raise SolverError("the aligned solve returned malformed poses; the map was not changed")
+        lines_x = np.asarray(lines_x, dtype=np.float64)
+        held_off = overruled(map, x, lines_x, active) if active else 0
+        if held_off > limit and phi != FIRM:
+            setaside.append(f"Phi {phi:g}: {held_off} of {len(active)}")
+            continue
         inc = inconsistency(map, x, config).total_m2
         if best is None or inc < best[0]:
-            best = (inc, phi, x, np.asarray(lines_x, dtype=np.float64), report_x)
+            best = (inc, phi, x, lines_x, report_x)
     assert best is not None
     after, phi, solved, lines, report = best
+    if setaside:
+        logger.info(
+            "alignment: set aside the solves that overrule more than %.0f%% of the %d "
+            "statements by %g deg or %g m (%s); kept Phi %g",
+            100 * config.align_max_overruled,
+            len(active),
+            OVERRULED_DEG,
+            OVERRULED_M,
+            "; ".join(setaside),
+            phi,
+        )
     k, steps = contradicted(map, solved)
     if steps and k > config.align_max_contradicted * steps:
         raise AlignmentRefused(
@@ -229,4 +313,5 @@ def align(
         initial_chi2=float(report.initial_chi2),
         final_chi2=float(report.final_chi2),
         time_s=time.perf_counter() - t0,
+        set_aside=tuple(setaside),
     )

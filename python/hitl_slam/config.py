@@ -138,6 +138,11 @@ class Config:
     # and keeps the more consistent map; every later solve while it is in effect uses the Phi
     # it kept (docs/ALGORITHM.md §I.11)
     align_relation_dcs: float = 100.0
+    # a candidate solve that holds off more than this share of the statements by more than 5 deg
+    # or 0.5 m (alignment.OVERRULED_DEG, OVERRULED_M) is a wrong scan match folding the map, not
+    # the scans refining it: it is set aside, and where every yielding candidate is, the
+    # statements are held firm (Phi 0) (docs/ALGORITHM.md §I.16; 1 = off)
+    align_max_overruled: float = 1 / 3
     # §6.1 metric / occupancy export
     grid_resolution: float = 0.05  # [m]
     # §6.2 inconsistency metric: its robustness rules (without them a perfect map scores 100s m^2)
@@ -179,6 +184,12 @@ class Config:
             raise InputError(
                 "config align_max_contradicted is a share of the odometry steps, between 0 and "
                 f"1, e.g. 0.05; got {self.align_max_contradicted!r}"
+            )
+
+        if not self.align_max_overruled <= 1:
+            raise InputError(
+                "config align_max_overruled is a share of the statements, between 0 and 1, "
+                f"e.g. 0.33; got {self.align_max_overruled!r}"
             )
 
     def replace(self, **changes: Any) -> Config:

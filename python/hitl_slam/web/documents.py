@@ -101,6 +101,12 @@ def last_change(
     }
 
 
+def _yields(phi: float, firm_dcs: float) -> bool:
+    """Whether relations at DCS ``phi`` yield more than the session's own (``firm_dcs``); a Phi
+    of 0 is no DCS at all: held firm."""
+    return phi > 0 and (firm_dcs == 0 or phi < firm_dcs)
+
+
 def alignment(step: AlignStep, firm_dcs: float, corrections: int) -> dict[str, Any]:
     """The figures of an alignment with the scans, for its ``last``: the loop closures the
     front end kept and rejected, the input map's odometry steps the guard checked and how many
@@ -118,6 +124,10 @@ def alignment(step: AlignStep, firm_dcs: float, corrections: int) -> dict[str, A
         "inconsistency": list(step.inconsistency),
         "relation_dcs": step.relation_dcs,
         "statements": (
-            "none" if corrections == 0 else "yield" if step.relation_dcs < firm_dcs else "firm"
+            "none"
+            if corrections == 0
+            else "yield"
+            if _yields(step.relation_dcs, firm_dcs)
+            else "firm"
         ),
     }
