@@ -383,7 +383,7 @@ def test_overruled_counts_statements_held_off_beyond_degrees_or_half_a_metre(see
 
 
 @needs_logs
-def test_where_a_wrong_scan_match_folds_the_map_the_statements_are_held_firm(
+def test_where_a_wrong_scan_match_folds_the_map_the_alignment_is_refused(
     tmp_path: Path,
 ) -> None:
     """Orebro with two heading jumps (laps), repaired by a careful person with 15 cm endpoint
@@ -392,34 +392,27 @@ def test_where_a_wrong_scan_match_folds_the_map_the_statements_are_held_firm(
     closures; with the statements yielding (Phi 100, and 1000) the map folded there, half of the
     person's twelve statements were held off by degrees and metres, and the map went from ATE
     0.88 m and 3.3 degrees to 2.45 m and 40 degrees, its inconsistency *lower* (172 -> 102
-    m^2), every guard passing. Both yielding solves are now set aside and the statements held
-    firm: the map improves instead, and the choice is journaled and replayed."""
+    m^2), every guard passing. Both solves are now set aside and the alignment refused with the
+    figures: the map, the journal and the undo stack are left as they were."""
     out: dict[str, Any] = {}
 
     def at_end(scenario: Any, session: Session) -> None:
-        truth = scenario.truth
-
-        def figures(poses: np.ndarray) -> tuple[float, float]:
-            return float(ate(poses, truth)), float(np.nanmean(scenario.errors(poses).angular))
-
-        out["before"] = figures(np.array(session.poses))
-        out["step"] = session.align()
-        out["after"] = figures(np.array(session.poses))
         out["poses"] = np.array(session.poses)
+        out["undo"] = session.can_undo
+        with pytest.raises(AlignmentRefused, match="contradict what you said") as refused:
+            session.align()
+        out["why"] = str(refused.value)
+        out["after"] = np.array(session.poses)
+        out["undo_after"] = session.can_undo
+        out["aligned"] = session.aligned
         session.write_journal(tmp_path / "orebro.hitl")
 
     evaluate_run("Orebro", "laps", 0.15, seed=2, align=False, on_end=at_end)
-    step = out["step"]
-    assert step.relation_dcs == 0.0
-    (ate0, angle0), (ate1, angle1) = out["before"], out["after"]
-    assert ate1 < ate0, (ate0, ate1)
-    assert angle1 < angle0, (angle0, angle1)
-    with Session.open(tmp_path / "orebro.hitl") as s:
-        assert s.alignment is not None
-        assert s.alignment.relation_dcs == 0.0
-        replayed, outcomes = s.replay()
-        assert outcomes[-1].relation_dcs == 0.0
-        assert np.allclose(replayed, out["poses"], atol=1e-9)
+    assert np.array_equal(out["after"], out["poses"])
+    assert out["undo_after"] == out["undo"]
+    assert not out["aligned"]
+    assert "of your 12 statements" in out["why"], out["why"]
+    assert _events(tmp_path / "orebro.hitl", "align") == 0
 
 
 def test_the_share_of_statements_overruled_is_a_share() -> None:

@@ -126,9 +126,8 @@ def test_align_keeps_the_corrections_and_undo_returns_to_the_map_before(
         assert figures["loop_closures_rejected"] >= 0
         assert figures["poses_moved"] > 0
         assert figures["max_move_m"] > 0
-        # 0: the statements held firm without DCS, every yielding solve set aside (§I.16).
-        assert figures["relation_dcs"] in (DEFAULT.align_relation_dcs, DEFAULT.relation_dcs, 0.0)
-        firm = figures["relation_dcs"] in (DEFAULT.relation_dcs, 0.0)
+        assert figures["relation_dcs"] in (DEFAULT.align_relation_dcs, DEFAULT.relation_dcs)
+        firm = figures["relation_dcs"] == DEFAULT.relation_dcs
         assert figures["statements"] == ("firm" if firm else "yield")
         # Every correction is kept: still in effect, with its solved lines.
         assert state["applied"] == 1

@@ -24,8 +24,8 @@ Before those, the solve itself is chosen among candidates (how far the person's 
 yield to the scans, :func:`relation_candidates`): a candidate that overrules more than
 ``Config.align_max_overruled`` of the statements (holds them off by more than
 :data:`OVERRULED_DEG` or :data:`OVERRULED_M`) is not the scans refining the map but a wrong
-match folding it, and is set aside; where every yielding candidate is, the statements are held
-firm (docs/ALGORITHM.md §I.16).
+match folding it, and is set aside; where every candidate is, the alignment is refused
+(docs/ALGORITHM.md §I.16).
 """
 
 from __future__ import annotations
@@ -73,9 +73,6 @@ of a degree, a fold of the map by degrees (docs/ALGORITHM.md §I.16)."""
 OVERRULED_M = 0.5
 """[m] Likewise for the offset between the two observation sets' centres (across the line for a
 collinear statement, anywhere for a colocation)."""
-
-FIRM = 0.0
-"""The Phi of relations held firm (no dynamic covariance scaling): the last candidate."""
 
 _MIN_POINTS_PER_SCAN = 20
 """Fewer laser points per scan on average than this and there is nothing to match."""
@@ -244,15 +241,11 @@ def align(
     # let part of the map turn about them (docs/ALGORITHM.md §I.11); and where one of its
     # matches is wrong by degrees, the map folds there and overrules many statements at once,
     # while its inconsistency falls (a folded map overlaps less): such a candidate is set
-    # aside, and if every one is, the statements are held firm (§I.16).
+    # aside, and if every one is, the alignment is refused (§I.16).
     best: tuple[float, float, FloatArray, FloatArray, SolveReport] | None = None
     limit = config.align_max_overruled * len(active)
-    candidates = relation_candidates(config) if active else (config.align_relation_dcs,)
-    fallback = bool(active) and FIRM not in candidates
-    setaside: list[str] = []
-    for phi in (*candidates, FIRM) if fallback else candidates:
-        if fallback and phi == FIRM and best is not None:
-            break  # firm only where every yielding candidate was set aside
+    setaside: list[tuple[float, int]] = []  # (Phi, statements overruled)
+    for phi in relation_candidates(config) if active else (config.align_relation_dcs,):
         x, lines_x, report_x = solve_all(
             graph, active, aligned_config(config, phi), start=graph.poses
         )
@@ -261,23 +254,32 @@ def align(
             raise SolverError("the aligned solve returned malformed poses; the map was not changed")
         lines_x = np.asarray(lines_x, dtype=np.float64)
         held_off = overruled(map, x, lines_x, active) if active else 0
-        if held_off > limit and phi != FIRM:
-            setaside.append(f"Phi {phi:g}: {held_off} of {len(active)}")
+        if held_off > limit:
+            setaside.append((phi, held_off))
             continue
         inc = inconsistency(map, x, config).total_m2
         if best is None or inc < best[0]:
             best = (inc, phi, x, lines_x, report_x)
-    assert best is not None
+    each = ", ".join(f"Phi {phi:g}: {k}" for phi, k in setaside)
+    if best is None:
+        raise AlignmentRefused(
+            f"the scans contradict what you said: the aligned map would hold at least "
+            f"{min(k for _, k in setaside)} of your {len(active)} statements off by more than "
+            f"{OVERRULED_DEG:g} degrees or {OVERRULED_M:g} m ({each}; at most "
+            f"{100 * config.align_max_overruled:.0f}% may be, config align_max_overruled); the "
+            "map was not changed. A scan match folded the map somewhere (a wrong match where "
+            "the robot turned, or too few loop closures to hold the map): correct what is left "
+            "by drawing"
+        )
     after, phi, solved, lines, report = best
     if setaside:
         logger.info(
-            "alignment: set aside the solves that overrule more than %.0f%% of the %d "
-            "statements by %g deg or %g m (%s); kept Phi %g",
-            100 * config.align_max_overruled,
+            "alignment: set aside the solves that would hold too many of the %d statements off "
+            "by more than %g deg or %g m (%s); kept Phi %g",
             len(active),
             OVERRULED_DEG,
             OVERRULED_M,
-            "; ".join(setaside),
+            each,
             phi,
         )
     k, steps = contradicted(map, solved)
@@ -313,5 +315,5 @@ def align(
         initial_chi2=float(report.initial_chi2),
         final_chi2=float(report.final_chi2),
         time_s=time.perf_counter() - t0,
-        set_aside=tuple(setaside),
+        set_aside=tuple(f"Phi {p:g}: {k} overruled" for p, k in setaside),
     )

@@ -507,12 +507,7 @@ def _align_session(args: argparse.Namespace, session: Session) -> None:
             f"({step.loop_closures_rejected} rejected); the aligned map contradicts "
             f"{step.contradicted} of {step.steps} odometry steps beyond their 99.9% bound; "
             f"inconsistency {step.inconsistency[0]:.1f} -> {step.inconsistency[1]:.1f} m^2; "
-            + (
-                f"the statements carry DCS Phi {step.relation_dcs:g} (the more consistent solve)"
-                if step.relation_dcs > 0
-                else "the statements are held firm (DCS off: the solves letting them yield "
-                "overruled too many of them, docs/ALGORITHM.md §I.16)"
-            )
+            f"the statements carry DCS Phi {step.relation_dcs:g} (the more consistent solve)"
         )
 
 

@@ -140,8 +140,8 @@ class Config:
     align_relation_dcs: float = 100.0
     # a candidate solve that holds off more than this share of the statements by more than 5 deg
     # or 0.5 m (alignment.OVERRULED_DEG, OVERRULED_M) is a wrong scan match folding the map, not
-    # the scans refining it: it is set aside, and where every yielding candidate is, the
-    # statements are held firm (Phi 0) (docs/ALGORITHM.md §I.16; 1 = off)
+    # the scans refining it: it is set aside, and where every candidate is, the alignment is
+    # refused (docs/ALGORITHM.md §I.16; 1 = off)
     align_max_overruled: float = 1 / 3
     # §6.1 metric / occupancy export
     grid_resolution: float = 0.05  # [m]
