@@ -9,9 +9,10 @@ import math
 import numpy as np
 import pytest
 
+from hitl_slam.errors import InputError
 from hitl_slam.full_evaluation import LASER, Drawing, Run, evaluate_run, full_report, summary
 from hitl_slam.sim import parallel_corridors
-from hitl_slam.sim.careful import CarefulPerson
+from hitl_slam.sim.careful import CarefulPerson, DrawingStyle
 from hitl_slam.sim.fault_models import FAULT_MODELS, bend, damaged, drift, jump, laps
 from hitl_slam.sim.odometry import HeadingDrift, HeadingJump
 
@@ -122,3 +123,26 @@ def test_unknown_fault_model_is_an_input_error() -> None:
     assert set(FAULT_MODELS) == {"jump", "drift", "bend", "laps"}
     with pytest.raises(InputError, match="unknown fault model"):
         evaluate_run("Orebro", "quake", 0.05)
+
+
+@pytest.mark.parametrize("seed", [1, 6])
+def test_a_person_drawing_past_the_ends_and_beside_the_wall_is_still_understood(seed: int) -> None:
+    """Another drawing style (benches/drawing_styles.py): strokes run on past the ends of the
+    copy by up to 0.4 m and drawn up to 0.2 m beside it, with 10 cm endpoint noise. On a
+    generated world the person's drawings are still interpreted and make the map better."""
+    style = DrawingStyle(overshoot=0.4, side=0.2)
+    run = evaluate_run(
+        "parallel corridors",
+        "laps",
+        0.10,
+        seed=seed,
+        max_corrections=8,
+        align=False,
+        person_style=style,
+    )
+    assert len(run.drawings) >= 4
+    assert run.accepted >= 0.75 * len(run.drawings), [d.reason for d in run.drawings]
+    assert run.angle[1] < run.angle[0]
+    assert run.ate[1] < run.ate[0]
+    with pytest.raises(InputError, match="overshoot and side"):
+        DrawingStyle(side=-0.1)

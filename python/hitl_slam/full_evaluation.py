@@ -31,7 +31,7 @@ from hitl_slam.evaluation import LASER, _nanmean
 if TYPE_CHECKING:
     from hitl_slam.corrections import Interpretation
     from hitl_slam.session import Applier, Session
-    from hitl_slam.sim.careful import CarefulPerson
+    from hitl_slam.sim.careful import CarefulPerson, DrawingStyle
     from hitl_slam.sim.human import Inconsistency, Visit
     from hitl_slam.sim.scenario import Scenario
 
@@ -200,6 +200,7 @@ def evaluate_run(
     on_end: Callable[[Scenario, Session], object] | None = None,
     align: bool = True,
     applier: ApplierFactory | None = None,
+    person_style: DrawingStyle | None = None,
 ) -> Run:
     """Damages map ``label`` by fault model ``fault`` and lets a careful person with endpoint
     noise ``noise_m`` repair it, scoring every drawing. With ``align``, once they have drawn
@@ -208,10 +209,12 @@ def evaluate_run(
     with the damaged scenario and the session at its last state, before the session closes
     (benches/scan_alignment.py starts from there). ``applier(scenario, person)``, if given,
     makes what computes each correction instead of :func:`hitl_slam.pipeline.apply_correction`
-    (benches/harm_oracle.py: one that knows the truth)."""
+    (benches/harm_oracle.py: one that knows the truth). ``person_style``: how the person's
+    strokes depart from what they see (:class:`~hitl_slam.sim.careful.DrawingStyle`,
+    benches/drawing_styles.py; default: they do not)."""
     from hitl_slam.metrics import ate, inconsistency
     from hitl_slam.session import Session
-    from hitl_slam.sim.careful import CarefulPerson
+    from hitl_slam.sim.careful import CarefulPerson, DrawingStyle
     from hitl_slam.sim.fault_models import FAULT_MODELS, damaged
     from hitl_slam.sim.scenario import Scenario
 
@@ -237,7 +240,13 @@ def evaluate_run(
         inc = inconsistency(m, poses, config, like=like)  # type: ignore[arg-type]
         return float(ate(poses, truth, align=True)), angle(poses), inc
 
-    person = CarefulPerson(scenario, person_rng, endpoint_noise=noise_m, config=config)
+    person = CarefulPerson(
+        scenario,
+        person_rng,
+        endpoint_noise=noise_m,
+        config=config,
+        style=person_style or DrawingStyle(),
+    )
     session = Session.new(
         m, config=config, applier=None if applier is None else applier(scenario, person)
     )
@@ -327,9 +336,13 @@ def evaluate_run(
     )
 
 
-def _run_one(args: tuple[str, str, float, int, bool, ApplierFactory | None]) -> Run:
-    label, fault, noise, seed, align, applier = args
-    return evaluate_run(label, fault, noise, seed=seed, align=align, applier=applier)
+def _run_one(
+    args: tuple[str, str, float, int, bool, ApplierFactory | None, DrawingStyle | None],
+) -> Run:
+    label, fault, noise, seed, align, applier, style = args
+    return evaluate_run(
+        label, fault, noise, seed=seed, align=align, applier=applier, person_style=style
+    )
 
 
 def run_full(
@@ -342,17 +355,18 @@ def run_full(
     log: Callable[[Run], None] = lambda _r: None,
     align: bool = True,
     applier: ApplierFactory | None = None,
+    person_style: DrawingStyle | None = None,
 ) -> list[Run]:
     """Every (map, fault model, noise) run, in that order (``jobs`` processes at once), each
-    with ``applier`` as :func:`evaluate_run` (with ``jobs`` > 1 it must pickle: a module-level
-    function, or a ``functools.partial`` of one)."""
+    with ``applier`` and ``person_style`` as :func:`evaluate_run` (with ``jobs`` > 1 the
+    applier must pickle: a module-level function, or a ``functools.partial`` of one)."""
     from hitl_slam.sim.fault_models import FAULT_MODELS
 
     for label in maps:
         if label not in FULL_MAPS:
             raise InputError(f"unknown map {label!r}; the maps are: {', '.join(FULL_MAPS)}")
     work = [
-        (label, fault, noise, seed, align, applier)
+        (label, fault, noise, seed, align, applier, person_style)
         for label in maps
         for fault in (faults or list(FAULT_MODELS))
         for noise in noises

@@ -9,9 +9,16 @@ meant), this person is harder on the interpreter: every endpoint is off by Gauss
 random direction, the drawing's accuracy is the default ``sigma_h``, and where both passes saw the
 same stretch of a wall (the same two ends) they say so with a colocation instead of a collinear
 pair.
+
+Other drawing styles (:class:`DrawingStyle`; off by default): a hand that runs each stroke on
+past the ends of what it saw by up to ``overshoot`` metres (uniform, each end on its own), and
+one that draws the whole stroke beside the wall, both ends shifted by one offset of up to
+``side`` metres to either side (benches/drawing_styles.py; docs/ALGORITHM.md §I.16).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,7 +29,7 @@ from hitl_slam.errors import InputError
 from hitl_slam.sim.human import Inconsistency, SimulatedHuman, Visit
 from hitl_slam.sim.scenario import Scenario, fit_points
 
-__all__ = ["CarefulPerson"]
+__all__ = ["CarefulPerson", "DrawingStyle"]
 
 FloatArray = NDArray[np.float64]
 
@@ -36,6 +43,23 @@ _SAME_ENDS_M = 0.3
 percentiles along the true wall) agree to this [m]: a person sees the same corners in both."""
 
 
+@dataclass(frozen=True)
+class DrawingStyle:
+    """How a careful person's strokes depart from the copy they see, beyond endpoint noise [m]:
+    each end run on past the copy's end by up to ``overshoot`` (uniform, each end on its own),
+    and the whole stroke shifted to one side by up to ``side`` (uniform, either side)."""
+
+    overshoot: float = 0.0
+    side: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (self.overshoot >= 0 and self.side >= 0):
+            raise InputError(
+                f"a drawing style's overshoot and side are >= 0 m, got {self.overshoot}, "
+                f"{self.side}"
+            )
+
+
 class CarefulPerson(SimulatedHuman):
     """A person who draws true statements with fixed endpoint noise and random direction (see the
     module's docstring). ``colocations``: say "the same stretch" where both passes saw it."""
@@ -47,6 +71,7 @@ class CarefulPerson(SimulatedHuman):
         *,
         endpoint_noise: float = 0.05,
         colocations: bool = True,
+        style: DrawingStyle = DrawingStyle(),
         config: Config = DEFAULT,
     ) -> None:
         if not endpoint_noise >= 0:
@@ -62,6 +87,7 @@ class CarefulPerson(SimulatedHuman):
             config=config,
         )
         self.colocations = colocations
+        self.style = style
         self._true_extent: dict[Visit, tuple[float, float]] = {}
 
     def _extent(self, visit: Visit) -> tuple[float, float]:
@@ -114,9 +140,21 @@ class CarefulPerson(SimulatedHuman):
         if float(np.hypot(*(ends[1] - ends[0]))) < max(0.3, _MIN_STROKE * self.endpoint_noise):
             return None
         ends = ends + self.rng.normal(0.0, self.endpoint_noise, (2, 2))
+        if self.style != DrawingStyle():
+            ends = self._styled(ends)
         if self.rng.random() < 0.5:
             ends = ends[::-1]
         return [[float(v) for v in e] for e in ends]
+
+    def _styled(self, ends: FloatArray) -> FloatArray:
+        """``ends`` in this person's :class:`DrawingStyle`."""
+        d = ends[1] - ends[0]
+        d = d / float(np.hypot(*d))
+        normal = np.array([-d[1], d[0]])
+        out = ends.copy()
+        out[0] -= d * self.rng.uniform(0.0, self.style.overshoot)
+        out[1] += d * self.rng.uniform(0.0, self.style.overshoot)
+        return out + normal * self.rng.uniform(-self.style.side, self.style.side)
 
     def _draw_visit(
         self, poses: FloatArray, visit: Visit, zoom: float
