@@ -33,7 +33,10 @@ from web_support import (
 # The room's simulated scans contradict a quarter of its odometry steps once matched again: the
 # default guard refuses that, a guard allowing every step lets it through.
 PERMISSIVE = DEFAULT.replace(
-    align_max_contradicted=1.0, align_min_loop_closures=0, align_consistency_guard=False
+    align_max_contradicted=1.0,
+    align_min_loop_closures=0,
+    align_consistency_guard=False,
+    align_max_overruled=1.0,
 )
 BUTTON = "#btn-align"
 INDICATOR = "#st-aligned"
