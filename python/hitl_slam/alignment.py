@@ -103,7 +103,6 @@ class Alignment:
     initial_chi2: float
     final_chi2: float
     time_s: float
-    set_aside: tuple[str, ...] = ()  # the candidates that overruled too many statements
 
 
 def aligned_config(config: Config, relation_dcs: float | None = None) -> Config:
@@ -315,5 +314,4 @@ def align(
         initial_chi2=float(report.initial_chi2),
         final_chi2=float(report.final_chi2),
         time_s=time.perf_counter() - t0,
-        set_aside=tuple(f"Phi {p:g}: {k} overruled" for p, k in setaside),
     )
