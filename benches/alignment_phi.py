@@ -110,7 +110,7 @@ def table(results: Sequence[dict[str, Any]]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from hitl_slam.sim.fault_models import FAULT_MODELS
+    from hitl_slam.sim.fault_models import FULL_FAULTS
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=1)
@@ -121,7 +121,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     specs = [
         (label, fault, noise, args.seed)
         for label in args.maps
-        for fault in FAULT_MODELS
+        for fault in FULL_FAULTS
         for noise in NOISES
     ]
     results = []

@@ -162,12 +162,16 @@ def _reason(message: str) -> str:
 
 
 def _describe(faults: Sequence[object]) -> str:
-    from hitl_slam.sim.odometry import HeadingJump
+    from hitl_slam.sim.odometry import HeadingJump, ScaleError, Slip
 
     parts = []
     for f in faults:
         if isinstance(f, HeadingJump):
             parts.append(f"jump {math.degrees(f.angle):+.1f} deg at pose {f.pose}")
+        elif isinstance(f, Slip):
+            parts.append(f"slip ({f.dx:+.2f}, {f.dy:+.2f}) m at pose {f.pose}")
+        elif isinstance(f, ScaleError):
+            parts.append(f"scale x{f.factor:.3f} over poses {f.start}-{f.stop}")
         else:
             parts.append(
                 f"drift {math.degrees(f.rate):+.3f} deg/m over poses {f.start}-{f.stop}"  # type: ignore[attr-defined]
@@ -360,7 +364,7 @@ def run_full(
     """Every (map, fault model, noise) run, in that order (``jobs`` processes at once), each
     with ``applier`` and ``person_style`` as :func:`evaluate_run` (with ``jobs`` > 1 the
     applier must pickle: a module-level function, or a ``functools.partial`` of one)."""
-    from hitl_slam.sim.fault_models import FAULT_MODELS
+    from hitl_slam.sim.fault_models import FULL_FAULTS
 
     for label in maps:
         if label not in FULL_MAPS:
@@ -368,7 +372,7 @@ def run_full(
     work = [
         (label, fault, noise, seed, align, applier, person_style)
         for label in maps
-        for fault in (faults or list(FAULT_MODELS))
+        for fault in (faults or FULL_FAULTS)
         for noise in noises
     ]
     runs: list[Run] = []

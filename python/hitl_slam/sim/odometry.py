@@ -1,7 +1,8 @@
 """Odometry from a true trajectory: the true relative motions plus Gaussian noise that grows with
 the distance and the rotation of each step (as the motion model of docs/ALGORITHM.md §1.3
-assumes), and injectable faults: a heading jump (a sensor failure) or a slow heading drift (a bent
-hallway).
+assumes), and injectable faults: a heading jump (a sensor failure), a slow heading drift (a bent
+hallway), a slip (the wheels spin or the robot is pushed: one step's translation is wrong) or a
+scale error (a wheel's radius is off: every step's distance is too long or too short).
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ __all__ = [
     "HeadingDrift",
     "HeadingJump",
     "OdometryNoise",
+    "ScaleError",
+    "Slip",
     "compose_motions",
     "odometry",
     "relative_motions",
@@ -79,7 +82,27 @@ class HeadingDrift:
     rate: float
 
 
-Fault = HeadingJump | HeadingDrift
+@dataclass(frozen=True)
+class Slip:
+    """The step from pose ``pose - 1`` to ``pose`` is off by ``(dx, dy)`` [m] in the robot's frame
+    at ``pose - 1`` (the wheels spun, or the robot was pushed, and the odometer did not see it)."""
+
+    pose: int
+    dx: float
+    dy: float
+
+
+@dataclass(frozen=True)
+class ScaleError:
+    """Every step's translation between poses ``start`` and ``stop - 1`` is ``factor`` times the
+    true one (a wheel radius off by ``factor - 1``)."""
+
+    start: int
+    stop: int
+    factor: float
+
+
+Fault = HeadingJump | HeadingDrift | Slip | ScaleError
 
 
 def relative_motions(poses: FloatArray) -> FloatArray:
@@ -130,6 +153,19 @@ def odometry(
             if not 1 <= fault.pose < n:
                 raise InputError(f"heading jump at pose {fault.pose}: poses are 1..{n - 1}")
             z[fault.pose - 1, 2] += fault.angle
+        elif isinstance(fault, Slip):
+            if not 1 <= fault.pose < n:
+                raise InputError(f"slip at pose {fault.pose}: poses are 1..{n - 1}")
+            z[fault.pose - 1, 0] += fault.dx
+            z[fault.pose - 1, 1] += fault.dy
+        elif isinstance(fault, ScaleError):
+            if not (0 <= fault.start <= fault.stop <= n and fault.factor > 0):
+                raise InputError(
+                    f"scale error {fault.factor} over poses {fault.start}..{fault.stop}: poses "
+                    f"are 0..{n} and the factor is > 0"
+                )
+            k = slice(fault.start, max(fault.start, fault.stop - 1))
+            z[k, :2] *= fault.factor
         else:
             if not 0 <= fault.start <= fault.stop <= n:
                 raise InputError(f"heading drift over poses {fault.start}..{fault.stop}: 0..{n}")

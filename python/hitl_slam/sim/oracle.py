@@ -32,7 +32,7 @@ from hitl_slam.pipeline import CorrectionResult, explicit_and_backpropagate, sol
 from hitl_slam.session import Applier
 from hitl_slam.sim.careful import CarefulPerson
 from hitl_slam.sim.human import Visit
-from hitl_slam.sim.odometry import DEFAULT_NOISE, HeadingDrift, HeadingJump
+from hitl_slam.sim.odometry import DEFAULT_NOISE, HeadingDrift, HeadingJump, ScaleError, Slip
 from hitl_slam.sim.scenario import Scenario, fit_points
 
 __all__ = ["oracle_applier", "true_information"]
@@ -48,13 +48,16 @@ _MIN_VAR_THETA = 1e-8
 def true_information(scenario: Scenario) -> FloatArray:
     """``(M, 3, 3)``: the information of each edge of ``scenario.map`` under the noise its
     odometry was drawn with (x and y each ``sigma_t``, heading ``sigma_theta``, uncorrelated),
-    with each fault's variance added to the heading of the steps it hit (a jump's angle squared
-    on its step; a drift's rate times the step's length, squared, on each step of its stretch)."""
+    with each fault's variance added to the steps it hit (a jump's angle squared on its step's
+    heading; a drift's rate times the step's length, squared, on each heading of its stretch; a
+    slip's length squared on x and y of its step; a scale error's share of each step's length,
+    squared, on x and y of each step of its stretch)."""
     m, noise = scenario.map, DEFAULT_NOISE
     e, z = m.edges, m.measurements
     dt = np.hypot(z[:, 0], z[:, 1])
     sigma_t = np.maximum(noise.sigma_t0 + noise.k_t * dt, _MIN_SIGMA_T)
     var_theta = (noise.sigma_theta0 + noise.k_theta * np.abs(z[:, 2]) + noise.k_theta_t * dt) ** 2
+    var_t = sigma_t**2
     chain = e[:, 1] == e[:, 0] + 1
     for fault in scenario.faults:
         if isinstance(fault, HeadingJump):
@@ -62,8 +65,13 @@ def true_information(scenario: Scenario) -> FloatArray:
         elif isinstance(fault, HeadingDrift):
             hit = chain & (e[:, 0] >= fault.start) & (e[:, 0] < fault.stop - 1)
             var_theta[hit] += (fault.rate * dt[hit]) ** 2
+        elif isinstance(fault, Slip):
+            var_t[chain & (e[:, 1] == fault.pose)] += fault.dx**2 + fault.dy**2
+        elif isinstance(fault, ScaleError):
+            hit = chain & (e[:, 0] >= fault.start) & (e[:, 0] < fault.stop - 1)
+            var_t[hit] += ((fault.factor - 1.0) * dt[hit]) ** 2
     info = np.zeros((e.shape[0], 3, 3))
-    info[:, 0, 0] = info[:, 1, 1] = sigma_t**-2
+    info[:, 0, 0] = info[:, 1, 1] = 1.0 / var_t
     info[:, 2, 2] = 1.0 / np.maximum(var_theta, _MIN_VAR_THETA)
     return info
 
