@@ -38,7 +38,10 @@ OREBRO = LASER / "orebro-corrected.log.gz"
 # The room's scans are few and simulated: matched again they contradict a quarter of its odometry
 # steps, which the default guard refuses. Allowing every step lets the alignment through.
 PERMISSIVE = DEFAULT.replace(
-    align_max_contradicted=1.0, align_min_loop_closures=0, align_consistency_guard=False
+    align_max_contradicted=1.0,
+    align_max_contradicted_local=1.0,
+    align_min_loop_closures=0,
+    align_consistency_guard=False,
 )
 
 needs_logs = pytest.mark.skipif(

@@ -15,7 +15,10 @@ guards judge the result without the truth, each refusing with its figures (nothi
   between the passes; without one the scans only re-measure the chain, which drifts;
 - odometry: the share of the input map's odometry steps the aligned poses contradict beyond the
   99.9% chi2 bound under the odometry's own information must be at most
-  ``Config.align_max_contradicted``;
+  ``Config.align_max_contradicted`` over the whole path, and at most
+  ``Config.align_max_contradicted_local`` in any :data:`LOCAL_STEPS` consecutive steps (a
+  front end gone wrong in one cluttered room contradicts few steps of a long log, all of them
+  there; a candidate solve that does is set aside, as below);
 - consistency (``Config.align_consistency_guard``): the aligned map's inconsistency (§6) must be
   lower than the map's before it (the point of aligning with the scans; the odometry guard keeps
   a map that flew apart, whose overlaps and so inconsistency shrink, from passing this one).
@@ -54,6 +57,8 @@ __all__ = [
     "align",
     "aligned_map",
     "contradicted",
+    "contradicted_steps",
+    "densest_stretch",
     "overruled",
 ]
 
@@ -73,6 +78,10 @@ of a degree, a fold of the map by degrees (docs/ALGORITHM.md §I.16)."""
 OVERRULED_M = 0.5
 """[m] Likewise for the offset between the two observation sets' centres (across the line for a
 collinear statement, anywhere for a colocation)."""
+
+LOCAL_STEPS = 100
+"""The stretch of consecutive odometry steps over which ``Config.align_max_contradicted_local``
+is counted (50-100 m of travel on maps with a scan every 0.5-1 m; docs/ALGORITHM.md §I.17)."""
 
 _MIN_POINTS_PER_SCAN = 20
 """Fewer laser points per scan on average than this and there is nothing to match."""
@@ -146,15 +155,15 @@ def overruled(
     return count
 
 
-def contradicted(map: Map, poses: FloatArray) -> tuple[int, int]:
-    """``(k, n)``: of ``map``'s ``n`` odometry steps (edges between consecutive poses), the
-    ``k`` that ``poses`` contradict beyond :data:`CHI2_3_999` (squared Mahalanobis distance of
-    the relative pose, under the step's own information)."""
+def contradicted_steps(map: Map, poses: FloatArray) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """``(first, beyond)``: ``map``'s odometry steps (edges between consecutive poses) by the
+    pose they start from, and whether ``poses`` contradict each beyond :data:`CHI2_3_999`
+    (squared Mahalanobis distance of the relative pose, under the step's own information)."""
     e = map.edges
-    chain = np.abs(e[:, 1] - e[:, 0]) == 1
-    n = int(chain.sum())
-    if n == 0:
-        return 0, 0
+    chain = np.flatnonzero(np.abs(e[:, 1] - e[:, 0]) == 1)
+    first = np.minimum(e[chain, 0], e[chain, 1])
+    order = np.argsort(first, kind="stable")
+    chain, first = chain[order], first[order]
     i, j = e[chain, 0], e[chain, 1]
     c, s = np.cos(poses[i, 2]), np.sin(poses[i, 2])
     d = poses[j, :2] - poses[i, :2]
@@ -164,7 +173,25 @@ def contradicted(map: Map, poses: FloatArray) -> tuple[int, int]:
     r = rel - map.measurements[chain]
     r[:, 2] = np.angle(np.exp(1j * r[:, 2]))
     d2 = np.einsum("ki,kij,kj->k", r, map.information[chain], r)
-    return int(np.count_nonzero(~(d2 <= CHI2_3_999))), n
+    return first.astype(np.int64), ~(d2 <= CHI2_3_999)
+
+
+def contradicted(map: Map, poses: FloatArray) -> tuple[int, int]:
+    """``(k, n)``: of ``map``'s ``n`` odometry steps (edges between consecutive poses), the
+    ``k`` that ``poses`` contradict beyond :data:`CHI2_3_999` (:func:`contradicted_steps`)."""
+    _, beyond = contradicted_steps(map, poses)
+    return int(np.count_nonzero(beyond)), int(beyond.size)
+
+
+def densest_stretch(beyond: NDArray[np.bool_], window: int = LOCAL_STEPS) -> tuple[int, int]:
+    """``(k, start)``: the most steps marked in ``beyond`` among any ``window`` consecutive
+    ones (all of them when there are fewer), and the index of the first step of that stretch."""
+    if beyond.size == 0:
+        return 0, 0
+    w = min(window, beyond.size)
+    counts = np.convolve(beyond.astype(np.int64), np.ones(w, dtype=np.int64), mode="valid")
+    start = int(np.argmax(counts))
+    return int(counts[start]), start
 
 
 def aligned_map(
@@ -188,6 +215,17 @@ def aligned_map(
     )
     share_scans(map, out)
     return out
+
+
+def _contradicts_odometry(k: int, steps: int, config: Config) -> AlignmentRefused:
+    return AlignmentRefused(
+        f"the scans disagree with the odometry: the aligned map contradicts {k} of the "
+        f"{steps} odometry steps ({100 * k / steps:.1f}%) beyond their 99.9% bound, more "
+        f"than the {100 * config.align_max_contradicted:.1f}% allowed "
+        "(config align_max_contradicted); the map was not changed. Scan matching is "
+        "unreliable on these scans here (few features, or a fault not yet corrected): "
+        "correct what is left by drawing"
+    )
 
 
 def align(
@@ -244,6 +282,10 @@ def align(
     best: tuple[float, float, FloatArray, FloatArray, SolveReport] | None = None
     limit = config.align_max_overruled * len(active)
     setaside: list[tuple[float, int]] = []  # (Phi, statements overruled)
+    # (Phi, steps contradicted in the stretch, its length, its first pose, its last pose, steps
+    # contradicted in all) of a candidate that contradicts the odometry in one stretch of the
+    # path (docs/ALGORITHM.md §I.17)
+    smeared: list[tuple[float, int, int, int, int, int]] = []
     for phi in relation_candidates(config) if active else (config.align_relation_dcs,):
         x, lines_x, report_x = solve_all(
             graph, active, aligned_config(config, phi), start=graph.poses
@@ -256,10 +298,33 @@ def align(
         if held_off > limit:
             setaside.append((phi, held_off))
             continue
+        first, beyond = contradicted_steps(map, x)
+        local, at = densest_stretch(beyond)
+        window = min(LOCAL_STEPS, beyond.size)
+        if window and local > config.align_max_contradicted_local * window:
+            last = int(first[at + window - 1]) + 1
+            smeared.append(
+                (phi, local, window, int(first[at]), last, int(np.count_nonzero(beyond)))
+            )
+            continue
         inc = inconsistency(map, x, config).total_m2
         if best is None or inc < best[0]:
             best = (inc, phi, x, lines_x, report_x)
     each = ", ".join(f"Phi {phi:g}: {k}" for phi, k in setaside)
+    if best is None and smeared:
+        _, local, window, lo, hi, k = min(smeared, key=lambda c: c[1])
+        if k > config.align_max_contradicted * len(beyond):
+            raise _contradicts_odometry(k, len(beyond), config)
+        raise AlignmentRefused(
+            f"the scans disagree with the odometry along poses {lo}-{hi}: the aligned map "
+            f"contradicts {local} of those {window} odometry steps ({100 * local / window:.0f}%) "
+            f"beyond their 99.9% bound, more than the "
+            f"{100 * config.align_max_contradicted_local:.0f}% allowed in any {LOCAL_STEPS} "
+            "consecutive steps (config align_max_contradicted_local); the map was not changed. "
+            "Scan matching went wrong there (clutter, a featureless corridor, a fault not yet "
+            "corrected): correct what is left there by drawing"
+            + (f"; the other solves overruled your statements ({each})" if setaside else "")
+        )
     if best is None:
         raise AlignmentRefused(
             f"the scans contradict what you said: the aligned map would hold at least "
@@ -271,6 +336,15 @@ def align(
             "by drawing"
         )
     after, phi, solved, lines, report = best
+    if smeared:
+        logger.info(
+            "alignment: set aside the solves that contradict the odometry in one stretch (%s); "
+            "kept Phi %g",
+            ", ".join(
+                f"Phi {c[0]:g}: {c[1]} of {c[2]} steps along poses {c[3]}-{c[4]}" for c in smeared
+            ),
+            phi,
+        )
     if setaside:
         logger.info(
             "alignment: set aside the solves that would hold too many of the %d statements off "
@@ -283,14 +357,7 @@ def align(
         )
     k, steps = contradicted(map, solved)
     if steps and k > config.align_max_contradicted * steps:
-        raise AlignmentRefused(
-            f"the scans disagree with the odometry: the aligned map contradicts {k} of the "
-            f"{steps} odometry steps ({100 * k / steps:.1f}%) beyond their 99.9% bound, more "
-            f"than the {100 * config.align_max_contradicted:.1f}% allowed "
-            "(config align_max_contradicted); the map was not changed. Scan matching is "
-            "unreliable on these scans here (few features, or a fault not yet corrected): "
-            "correct what is left by drawing"
-        )
+        raise _contradicts_odometry(k, steps, config)
     if config.align_consistency_guard and not after < before:
         raise AlignmentRefused(
             f"the aligned map is no more consistent with its scans than the map is: its "

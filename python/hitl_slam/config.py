@@ -128,6 +128,10 @@ class Config:
     # alignment with the scans (docs/ALGORITHM.md §I.11): refused when the aligned poses
     # contradict more than this share of the odometry steps beyond their 99.9% bound
     align_max_contradicted: float = 0.05
+    # and, for each candidate solve, in any alignment.LOCAL_STEPS (100) consecutive steps: a
+    # candidate beyond it is set aside, and where every one is, the alignment is refused
+    # (docs/ALGORITHM.md §I.17; 1 = off)
+    align_max_contradicted_local: float = 0.15
     # and when the front end kept fewer loop closures than this between the passes
     align_min_loop_closures: int = 1
     # and when the aligned map is not less inconsistent (§6) than the map before it (False: off)
@@ -184,6 +188,12 @@ class Config:
             raise InputError(
                 "config align_max_contradicted is a share of the odometry steps, between 0 and "
                 f"1, e.g. 0.05; got {self.align_max_contradicted!r}"
+            )
+
+        if not self.align_max_contradicted_local <= 1:
+            raise InputError(
+                "config align_max_contradicted_local is a share of the odometry steps in a "
+                f"stretch, between 0 and 1, e.g. 0.15; got {self.align_max_contradicted_local!r}"
             )
 
         if not self.align_max_overruled <= 1:
