@@ -1,8 +1,9 @@
 """`hitl-slam evaluate --full`: the harder evaluation of issue 11, kept as a benchmark.
 
 Every map (the six corrected real logs in ../shared/datasets/laser and the generated worlds) is
-damaged by every fault model of :mod:`hitl_slam.sim.fault_models` (a large heading jump, slow
-drift, a bent corridor, three copies from two jumps) and repaired by a
+damaged by each of the issue's fault models (:data:`hitl_slam.sim.fault_models.FULL_FAULTS`: a
+large heading jump, slow drift, a bent corridor, three copies from two jumps; ``slip`` and
+``scale`` on request) and repaired by a
 :class:`~hitl_slam.sim.careful.CarefulPerson` drawing true statements with 5 cm and with 15 cm
 endpoint noise, one correction at a time on the current map. Every drawing is recorded: accepted or
 refused (and why), and the map's ATE, mean wall-angle error and inconsistency before and after.
@@ -508,11 +509,12 @@ def full_report(runs: Sequence[Run], provenance: str) -> str:
         "",
         provenance,
         "",
-        "Each map is damaged by each fault model (`hitl_slam.sim.fault_models`: `jump` one",
-        "30-degree heading jump in the middle 40% of the run; `drift` 15 degrees of heading drift",
-        "spread over the whole run; `bend` 10 degrees along the straightest stretch; `laps` two",
-        "jumps of 8-15 degrees, three copies of what is seen throughout), with 1% / 2% /",
-        "0.1 deg/m odometry noise besides, then repaired by a careful person",
+        "Each map is damaged by each fault model of the run (`hitl_slam.sim.fault_models`: `jump`",
+        "one 30-degree heading jump in the middle 40% of the run; `drift` 15 degrees of heading",
+        "drift spread over the whole run; `bend` 10 degrees along the straightest stretch; `laps`",
+        "two jumps of 8-15 degrees, three copies of what is seen throughout; on request `slip`,",
+        "one step's translation 0.5-1.5 m off, and `scale`, every distance 3-6% off), with",
+        "1% / 2% / 0.1 deg/m odometry noise besides, then repaired by a careful person",
         "(`hitl_slam.sim.careful.CarefulPerson`) who draws only true statements on the copies",
         "they can see, in random direction, with 5 cm or 15 cm endpoint noise, one correction at",
         "a time on the current map, each committed as drawn. Once they have drawn what they",
