@@ -24,7 +24,15 @@ from hitl_slam.sim.fault_models import (
     scale,
     slip,
 )
-from hitl_slam.sim.odometry import HeadingDrift, HeadingJump
+from hitl_slam.sim.odometry import (
+    NO_NOISE,
+    HeadingDrift,
+    HeadingJump,
+    ScaleError,
+    Slip,
+    odometry,
+    relative_motions,
+)
 
 needs_logs = pytest.mark.skipif(
     not (LASER / "orebro-corrected.log.gz").is_file(),
@@ -55,17 +63,8 @@ def test_fault_models_put_their_faults_where_they_say(seed: int) -> None:
     assert two[0].pose < two[1].pose  # type: ignore[union-attr]
     signs = {math.copysign(1.0, jump(truth, np.random.default_rng(s))[0].angle) for s in range(12)}
     assert signs == {-1.0, 1.0}
-
-
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_a_slip_and_a_scale_error_damage_the_odometry_as_they_say(seed: int) -> None:
-    """The two fault models outside the issue's four: one step off by 0.5-1.5 m (in the robot's
-    frame), or every distance 3-6% off; the headings are left alone by both."""
-    from hitl_slam.sim.odometry import NO_NOISE, ScaleError, Slip, odometry, relative_motions
-
-    truth = parallel_corridors(seed, heading_jump_deg=0.0).truth
-    n = truth.shape[0]
-    rng = np.random.default_rng(seed)
+    # The two outside the issue's four: one step off by 0.5-1.5 m (in the robot's frame), or
+    # every distance 3-6% off; the headings are left alone by both.
     (s,) = slip(truth, rng)
     assert isinstance(s, Slip)
     assert 0.3 * n <= s.pose < 0.7 * n
