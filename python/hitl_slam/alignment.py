@@ -15,10 +15,11 @@ guards judge the result without the truth, each refusing with its figures (nothi
   between the passes; without one the scans only re-measure the chain, which drifts;
 - odometry: the share of the input map's odometry steps the aligned poses contradict beyond the
   99.9% chi2 bound under the odometry's own information must be at most
-  ``Config.align_max_contradicted`` over the whole path, and at most
-  ``Config.align_max_contradicted_local`` in any :data:`LOCAL_STEPS` consecutive steps (a
-  front end gone wrong in one cluttered room contradicts few steps of a long log, all of them
-  there; a candidate solve that does is set aside, as below);
+  ``Config.align_max_contradicted`` over the whole path, and, if set below 1 (off by default,
+  docs/ALGORITHM.md §I.17), at most ``Config.align_max_contradicted_local`` in any
+  :data:`LOCAL_STEPS` consecutive steps (a front end gone wrong in one cluttered room
+  contradicts few steps of a long log, all of them there; a candidate solve that does is set
+  aside, as below);
 - consistency (``Config.align_consistency_guard``): the aligned map's inconsistency (§6) must be
   lower than the map's before it (the point of aligning with the scans; the odometry guard keeps
   a map that flew apart, whose overlaps and so inconsistency shrink, from passing this one).

@@ -130,8 +130,9 @@ class Config:
     align_max_contradicted: float = 0.05
     # and, for each candidate solve, in any alignment.LOCAL_STEPS (100) consecutive steps: a
     # candidate beyond it is set aside, and where every one is, the alignment is refused
-    # (docs/ALGORITHM.md §I.17; 1 = off)
-    align_max_contradicted_local: float = 0.15
+    # (docs/ALGORITHM.md §I.17; 1 = off, the default: at 0.15 it caught one smeared alignment
+    # and refused two helpful ones of the standard evaluation)
+    align_max_contradicted_local: float = 1.0
     # and when the front end kept fewer loop closures than this between the passes
     align_min_loop_closures: int = 1
     # and when the aligned map is not less inconsistent (§6) than the map before it (False: off)
