@@ -299,9 +299,12 @@ def align(
         if held_off > limit:
             setaside.append((phi, held_off))
             continue
-        first, beyond = contradicted_steps(map, x)
-        local, at = densest_stretch(beyond)
-        window = min(LOCAL_STEPS, beyond.size)
+        if config.align_max_contradicted_local < 1:  # off by default (§I.17): no work then
+            first, beyond = contradicted_steps(map, x)
+            local, at = densest_stretch(beyond)
+            window = min(LOCAL_STEPS, beyond.size)
+        else:
+            local = window = 0
         if window and local > config.align_max_contradicted_local * window:
             last = int(first[at + window - 1]) + 1
             smeared.append(
