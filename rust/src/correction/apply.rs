@@ -9,7 +9,7 @@ use std::time::Instant;
 use super::backpropagate;
 use super::engine::{fit_line_at, CorrectionEngine, CorrectionSpec, HumanWeights};
 use super::explicit::explicit_transform;
-use super::interpretation::{interpret, span, Drawing, InterpretParams, Interpretation};
+use super::interpretation::{interpret, span, Drawing, InterpretParams, Interpretation, NEAR_TIE};
 use super::scans::{Row, Scans};
 use crate::error::{input, HitlError, Result};
 use crate::factors::{FactorClass, RelationMode};
@@ -180,6 +180,19 @@ pub struct Solved {
 /// Below this robust weight a relation counts as yielding to contradicting evidence (as
 /// `hitl_slam.solve.downweighted`).
 const YIELDED: f64 = 0.5;
+
+/// Whether `solved` contradicts earlier corrections: an earlier relation that held on the map
+/// as shown (`before`, empty when every one held) yields, or the new one yields to them.
+fn contradicts(solved: &Solved, before: &[f64]) -> bool {
+    let Some((new, earlier)) = solved.relation_weights.split_last() else {
+        return false;
+    };
+    let newly = earlier
+        .iter()
+        .enumerate()
+        .any(|(k, w)| *w < YIELDED && before.get(k).is_none_or(|b| *b >= YIELDED));
+    newly || (solved.contested && *new < YIELDED)
+}
 
 /// The note naming the relations that yield where corrections contradict one another
 /// (docs/ALGORITHM.md §I.8): `weights` are the active corrections' relations in order, then the
@@ -425,8 +438,63 @@ impl CorrectionEngine {
                 }
             },
         );
-        let (mut h, before) = (h?, before?);
+        let (h, before) = (h?, before?);
         let time_interpret = t0.elapsed().as_secs_f64();
+        let (mut h, mut solved) =
+            self.solve_reading(scans, current, drawing, h, before, active, p)?;
+        // The weights on the map as shown matter only where an earlier relation yields now.
+        let earlier = &solved.relation_weights[..active.len().min(solved.relation_weights.len())];
+        let before_weights = if earlier.iter().any(|w| *w < YIELDED) {
+            self.relation_weights_at(scans, current, active, p)?
+        } else {
+            Vec::new()
+        };
+        if contradicts(&solved, &before_weights) {
+            if let Some((alt, alt_solved)) = self.near_tie_reading(
+                scans,
+                current,
+                drawing,
+                &h,
+                &solved,
+                before,
+                &before_weights,
+                active,
+                p,
+            )? {
+                (h, solved) = (alt, alt_solved);
+            }
+        }
+        if let Some(note) =
+            contradicted_note(&solved.relation_weights, &before_weights, solved.contested)
+        {
+            h.notes.push(note);
+        }
+        Ok(Applied {
+            interpretation: h,
+            poses: solved.poses,
+            lines: solved.lines,
+            transform: solved.transform,
+            report: solved.report,
+            time_interpret,
+            time_total: t0.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// One reading of a drawing (`h`, interpreted on the map shown with `current`) corrected
+    /// and solved: the colocation's length rule and guard (§I.3, §I.13), the contradiction
+    /// settled (§I.8), and the consistency guard (§I.6). `before`: the chi2 of the map's own
+    /// factors at `current`.
+    #[allow(clippy::too_many_arguments)]
+    fn solve_reading(
+        &mut self,
+        scans: &Scans,
+        current: &[Pose2],
+        drawing: &Drawing,
+        mut h: Interpretation,
+        before: f64,
+        active: &[Active],
+        p: &ApplyParams,
+    ) -> Result<(Interpretation, Solved)> {
         let sigma_h = p.interpret.sigma_h;
         if h.mode == RelationMode::Colocation && p.colocation_guard > 0.0 && p.length_rule {
             let len_a = Self::stretch(scans, current, &h.s_a)?;
@@ -502,27 +570,105 @@ impl CorrectionEngine {
             (h, solved) =
                 self.consistency_guard(scans, current, drawing, h, solved, before, active, p)?;
         }
-        // The weights on the map as shown matter only where an earlier relation yields now.
-        let earlier = &solved.relation_weights[..active.len().min(solved.relation_weights.len())];
-        let before_weights = if earlier.iter().any(|w| *w < YIELDED) {
-            self.relation_weights_at(scans, current, active, p)?
-        } else {
-            Vec::new()
-        };
-        if let Some(note) =
-            contradicted_note(&solved.relation_weights, &before_weights, solved.contested)
-        {
-            h.notes.push(note);
+        Ok((h, solved))
+    }
+
+    /// Where the reading kept contradicts earlier corrections (`solved`: some earlier relation
+    /// that held on the map as shown, `before_weights`, yields now, or the new one yields to
+    /// them) and a segment's snap was a near tie ([`Interpretation::near_ties`]), the drawing
+    /// is read again with that segment on the other line of the tie (each alone, then both).
+    /// The first reading that contradicts none of them is returned with a note; `None` keeps
+    /// the first (docs/ALGORITHM.md §I.18). A person who drew between two lines of nearly equal
+    /// weight meant the one consistent with what they said before.
+    #[allow(clippy::too_many_arguments)]
+    fn near_tie_reading(
+        &mut self,
+        scans: &Scans,
+        current: &[Pose2],
+        drawing: &Drawing,
+        h: &Interpretation,
+        solved: &Solved,
+        before: f64,
+        before_weights: &[f64],
+        active: &[Active],
+        p: &ApplyParams,
+    ) -> Result<Option<(Interpretation, Solved)>> {
+        let [tie_a, tie_b] = h.near_ties;
+        let mut tries: Vec<Drawing> = Vec::new();
+        if let Some(a) = tie_a {
+            tries.push(Drawing { a, ..*drawing });
         }
-        Ok(Applied {
-            interpretation: h,
-            poses: solved.poses,
-            lines: solved.lines,
-            transform: solved.transform,
-            report: solved.report,
-            time_interpret,
-            time_total: t0.elapsed().as_secs_f64(),
-        })
+        if let Some(b) = tie_b {
+            tries.push(Drawing { b, ..*drawing });
+        }
+        if let (Some(a), Some(b)) = (tie_a, tie_b) {
+            tries.push(Drawing { a, b, ..*drawing });
+        }
+        let yielded = |s: &Solved| -> usize {
+            s.relation_weights.split_last().map_or(0, |(_, earlier)| {
+                earlier
+                    .iter()
+                    .enumerate()
+                    .filter(|(k, w)| {
+                        **w < YIELDED && before_weights.get(*k).is_none_or(|b| *b >= YIELDED)
+                    })
+                    .count()
+            })
+        };
+        for alt_drawing in tries {
+            // A reading the engine refuses is no alternative; the first one stands.
+            let alt = match interpret(scans, current, &alt_drawing, &p.interpret, false) {
+                Ok(alt) => alt,
+                Err(HitlError::Rejected(_)) => continue,
+                Err(e) => return Err(e),
+            };
+            if alt.s_a == h.s_a && alt.s_b == h.s_b {
+                continue;
+            }
+            let (mut alt, alt_solved) =
+                match self.solve_reading(scans, current, &alt_drawing, alt, before, active, p) {
+                    Ok(found) => found,
+                    Err(HitlError::Rejected(_)) => continue,
+                    Err(e) => return Err(e),
+                };
+            // The weights of the map as shown, if the first reading did not need them.
+            let fresh;
+            let weights = if before_weights.is_empty() && !active.is_empty() {
+                fresh = self.relation_weights_at(scans, current, active, p)?;
+                fresh.as_slice()
+            } else {
+                before_weights
+            };
+            if contradicts(&alt_solved, weights) {
+                continue;
+            }
+            let moved: Vec<String> = [('a', tie_a, alt_drawing.a), ('b', tie_b, alt_drawing.b)]
+                .into_iter()
+                .filter(|(_, tie, seg)| tie.is_some_and(|t| t == *seg))
+                .map(|(name, _, _)| name.to_string())
+                .collect();
+            let mut why = Vec::new();
+            let k = yielded(solved);
+            if k > 0 {
+                why.push(format!(
+                    "{k} earlier correction{} would yield",
+                    if k > 1 { "s" } else { "" }
+                ));
+            }
+            if solved.relation_weights.last().is_some_and(|w| *w < YIELDED) {
+                why.push("it would hold only in part".to_string());
+            }
+            alt.notes.push(format!(
+                "read on the next line: segment {} lay between two lines of nearly equal weight \
+                 (scores within {NEAR_TIE}), and read on the nearer one this correction \
+                 contradicted earlier ones ({}); on the next line it contradicts none, so that \
+                 reading was kept",
+                moved.join(" and "),
+                why.join(", and ")
+            ));
+            return Ok(Some((alt, alt_solved)));
+        }
+        Ok(None)
     }
 
     /// The guard of docs/ALGORITHM.md §I.6 on a solved result (see [`Self::guard_alternative`]).

@@ -58,7 +58,17 @@ pub struct Interpretation {
     pub iterations: [usize; 2],
     pub log_likelihood: [f64; 2],
     pub notes: Vec<String>,
+    /// Per drawn segment (a, b, as drawn, whatever `swapped`): where its snap was a near tie
+    /// (the next line within [`NEAR_TIE`] of the score of the one chosen), the drawing moved
+    /// onto that next line: the other reading, tried where this one contradicts earlier
+    /// corrections (docs/ALGORITHM.md §I.18).
+    pub near_ties: [Option<[[f64; 2]; 2]>; 2],
 }
+
+/// A snap whose next line scores within this much of the chosen one's (`ln` of support, less
+/// the closeness and direction terms: a factor of `e` in support at equal closeness) is a near
+/// tie: the drawing alone does not say which of the two lines it meant.
+pub const NEAR_TIE: f64 = 1.0;
 
 fn rejected<T>(msg: impl Into<String>) -> Result<T> {
     Err(HitlError::Rejected(msg.into()))
@@ -979,6 +989,7 @@ pub fn interpret(
             ));
         }
     }
+    let near_ties = near_ties(&paired);
     Ok(Interpretation {
         mode: drawing.mode,
         line_a,
@@ -990,6 +1001,23 @@ pub fn interpret(
         x_a: paired.xa,
         x_b: paired.xb,
         swapped: paired.swapped,
+        near_ties,
         notes,
     })
+}
+
+/// [`Interpretation::near_ties`] of the selections the pair rules kept.
+fn near_ties(paired: &Paired) -> [Option<[[f64; 2]; 2]>; 2] {
+    let mut out = [None, None];
+    for s in [&paired.a, &paired.b] {
+        let Some(snap) = s.fit.snap.as_ref() else {
+            continue;
+        };
+        if let Some(other) = snap.runner_up_segment {
+            if snap.score - snap.runner_up <= NEAR_TIE {
+                out[usize::from(s.name == 'b')] = Some([other.a, other.b]);
+            }
+        }
+    }
+    out
 }

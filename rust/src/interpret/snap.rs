@@ -79,6 +79,9 @@ pub struct Snap {
     /// The best score among lines at least `3 sigma` away from the chosen one (at the drawn
     /// midpoint), `-inf` when there is none: how clear the choice was.
     pub runner_up: f64,
+    /// The drawn endpoints projected onto that runner-up line (same order as drawn), `None`
+    /// when there is none: the other reading of a near tie (docs/ALGORITHM.md §I.18).
+    pub runner_up_segment: Option<Segment>,
 }
 
 /// Largest turn searched, whatever the segment's length (radians).
@@ -189,42 +192,50 @@ pub fn snap(
     else {
         return Ok(None);
     };
-    let runner_up = found
+    let other = found
         .iter()
         .filter(|f| (f.2 - offset).abs() > 3.0 * params.sigma)
-        .map(|f| f.0)
-        .fold(f64::NEG_INFINITY, f64::max);
-    let (s, c) = turn.sin_cos();
-    let hough = [
-        c * frame.n[0] - s * frame.n[1],
-        s * frame.n[0] + c * frame.n[1],
-    ];
-    let refined = refine(&local, hough, offset, params.sigma);
-    // A short drawing near a corner: the refinement can slide onto the crossing wall. A person
-    // drawing along a wall is never that far off its direction; keep the histogram's line.
-    let refined_turn = (refined.0[0] * frame.n[1] - refined.0[1] * frame.n[0])
-        .abs()
-        .atan2(dot(refined.0, frame.n).abs());
-    let (n, offset) = if refined_turn <= MAX_TURN_CAP + 0.05 {
-        refined
-    } else {
-        (hough, offset)
-    };
-    let project = |p: Point, e: Point| -> (Point, f64) {
-        let d = dot(n, e) - offset;
-        ([p[0] - d * n[0], p[1] - d * n[1]], d.abs())
-    };
-    let (a, ea) = project(seg.a, ends[0]);
-    let (b, eb) = project(seg.b, ends[1]);
-    Ok(Some(Snap {
-        segment: Segment::new(a, b),
-        moved: [ea, eb],
-        turn: (n[0] * frame.n[1] - n[1] * frame.n[0])
+        .max_by(|x, y| x.0.total_cmp(&y.0).then(y.1.abs().total_cmp(&x.1.abs())));
+    let runner_up = other.map_or(f64::NEG_INFINITY, |f| f.0);
+    let on_line = |turn: f64, offset: f64| -> (Segment, [f64; 2], f64) {
+        let (s, c) = turn.sin_cos();
+        let hough = [
+            c * frame.n[0] - s * frame.n[1],
+            s * frame.n[0] + c * frame.n[1],
+        ];
+        let refined = refine(&local, hough, offset, params.sigma);
+        // A short drawing near a corner: the refinement can slide onto the crossing wall. A
+        // person drawing along a wall is never that far off its direction; keep the
+        // histogram's line.
+        let refined_turn = (refined.0[0] * frame.n[1] - refined.0[1] * frame.n[0])
             .abs()
-            .atan2(dot(n, frame.n).abs()),
+            .atan2(dot(refined.0, frame.n).abs());
+        let (n, offset) = if refined_turn <= MAX_TURN_CAP + 0.05 {
+            refined
+        } else {
+            (hough, offset)
+        };
+        let project = |p: Point, e: Point| -> (Point, f64) {
+            let d = dot(n, e) - offset;
+            ([p[0] - d * n[0], p[1] - d * n[1]], d.abs())
+        };
+        let (a, ea) = project(seg.a, ends[0]);
+        let (b, eb) = project(seg.b, ends[1]);
+        let turn = (n[0] * frame.n[1] - n[1] * frame.n[0])
+            .abs()
+            .atan2(dot(n, frame.n).abs());
+        (Segment::new(a, b), [ea, eb], turn)
+    };
+    let (segment, moved, turn) = on_line(turn, offset);
+    let runner_up_segment = other.map(|f| on_line(f.1, f.2).0);
+    Ok(Some(Snap {
+        segment,
+        moved,
+        turn,
         support,
         score,
         runner_up,
+        runner_up_segment,
     }))
 }
 
@@ -302,6 +313,30 @@ mod tests {
             }
             assert!(s.support > 60, "{s:?}");
         }
+    }
+
+    #[test]
+    fn a_drawing_between_two_copies_names_the_other_reading() {
+        // Two equally dense copies 0.3 m apart and a stroke midway: the snap picks one, scores
+        // the other nearly the same, and projects the stroke onto it as the other reading.
+        let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+        let mut flat = wall(&mut rng, 0.0, 0.0, 6.0, 0.0, 0.01);
+        flat.extend(wall(&mut rng, 0.3, 0.0, 6.0, 0.0, 0.01));
+        let s = run(&flat, Segment::new([5.0, 0.16], [1.0, 0.14])).unwrap();
+        let chosen = s.segment.a[1];
+        let want = if chosen.abs() < 0.02 { 0.3 } else { 0.0 };
+        assert!(chosen.abs() < 0.02 || (chosen - 0.3).abs() < 0.02, "{s:?}");
+        assert!(s.score - s.runner_up < 0.5, "{s:?}");
+        let other = s.runner_up_segment.expect("the other copy");
+        for p in [other.a, other.b] {
+            assert!((p[1] - want).abs() < 0.02, "{s:?}");
+        }
+        // Drawn order kept: a near x = 5, b near x = 1.
+        assert!(other.a[0] > 4.9 && other.b[0] < 1.1, "{other:?}");
+        // A stroke on one copy: the other is far behind in score.
+        let clear = run(&flat, Segment::new([1.0, 0.01], [5.0, 0.0])).unwrap();
+        assert!(clear.segment.a[1].abs() < 0.02, "{clear:?}");
+        assert!(clear.score - clear.runner_up > 1.0, "{clear:?}");
     }
 
     #[test]

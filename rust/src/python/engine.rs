@@ -449,6 +449,7 @@ impl PyCorrectionEngine {
                 iterations: [0, 0],
                 log_likelihood: [0.0, 0.0],
                 notes: Vec::new(),
+                near_ties: [None, None],
             };
             Ok((
                 read_active(&active)?,
@@ -507,6 +508,7 @@ impl PyCorrectionEngine {
                 iterations: [0, 0],
                 log_likelihood: [0.0, 0.0],
                 notes: Vec::new(),
+                near_ties: [None, None],
             };
             engine.explicit_and_backpropagate(&read_poses(&poses)?, &h)
         };
