@@ -111,6 +111,11 @@ class Config:
     # docs/ALGORITHM.md §I.3). Off: the two readings are solved and the chi2 guard and the
     # scans (§I.13) choose, which made fewer corrections worse in the full evaluation
     colocation_length_rule: bool = False
+    # a drawing whose segment lay between two lines of nearly equal score (its snap a near tie,
+    # docs/ALGORITHM.md §I.1) and whose reading contradicts earlier corrections (one of them, or
+    # the new one, would yield, §I.8) is read again with that segment on the other line; the
+    # first reading that contradicts none is kept, with a note (§I.18)
+    near_tie_reading: bool = True
     # consistency guard: a correction after which the map's own measurements (its relative-pose
     # factors) score a chi2 above this quantile of chi2 with 3 x edges dof is tried again with
     # the passes nearest the drawings, then refused with the figures (0 = off)

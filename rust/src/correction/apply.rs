@@ -75,6 +75,9 @@ pub struct ApplyParams {
     /// collinear before any solve (`Config.colocation_length_rule`, off by default since the
     /// two solves decide better; docs/ALGORITHM.md §I.3).
     pub length_rule: bool,
+    /// Whether a reading that contradicts earlier corrections is tried again on the next line
+    /// of a near-tie snap (`Config.near_tie_reading`, docs/ALGORITHM.md §I.18).
+    pub near_tie_reading: bool,
 }
 
 /// How far around its passes a colocation's two readings are compared (§I.13): each pass
@@ -449,7 +452,7 @@ impl CorrectionEngine {
         } else {
             Vec::new()
         };
-        if contradicts(&solved, &before_weights) {
+        if p.near_tie_reading && contradicts(&solved, &before_weights) {
             if let Some((alt, alt_solved)) = self.near_tie_reading(
                 scans,
                 current,
@@ -642,6 +645,16 @@ impl CorrectionEngine {
             if contradicts(&alt_solved, weights) {
                 continue;
             }
+            // Which of two contradicting statements is wrong, the new one or the earlier, the
+            // robot's own measurements decide (as between a colocation and its collinear
+            // reading, §I.3): the other reading is kept only where it costs them less.
+            let (first, second) = (
+                self.base_chi2(&solved.poses)?,
+                self.base_chi2(&alt_solved.poses)?,
+            );
+            if second.partial_cmp(&first) != Some(std::cmp::Ordering::Less) {
+                continue;
+            }
             let moved: Vec<String> = [('a', tie_a, alt_drawing.a), ('b', tie_b, alt_drawing.b)]
                 .into_iter()
                 .filter(|(_, tie, seg)| tie.is_some_and(|t| t == *seg))
@@ -661,8 +674,9 @@ impl CorrectionEngine {
             alt.notes.push(format!(
                 "read on the next line: segment {} lay between two lines of nearly equal weight \
                  (scores within {NEAR_TIE}), and read on the nearer one this correction \
-                 contradicted earlier ones ({}); on the next line it contradicts none, so that \
-                 reading was kept",
+                 contradicted earlier ones ({}); on the next line it contradicts none and costs \
+                 the robot's measurements less (chi2 {first:.1} -> {second:.1}), so that reading \
+                 was kept",
                 moved.join(" and "),
                 why.join(", and ")
             ));

@@ -188,6 +188,7 @@ fn apply_params(
             None
         },
         length_rule: attr(config, "colocation_length_rule")?,
+        near_tie_reading: attr(config, "near_tie_reading")?,
     })
 }
 
