@@ -184,17 +184,19 @@ pub struct Solved {
 /// `hitl_slam.solve.downweighted`).
 const YIELDED: f64 = 0.5;
 
-/// Whether `solved` contradicts earlier corrections: an earlier relation that held on the map
-/// as shown (`before`, empty when every one held) yields, or the new one yields to them.
-fn contradicts(solved: &Solved, before: &[f64]) -> bool {
-    let Some((new, earlier)) = solved.relation_weights.split_last() else {
+/// Whether a solution contradicts earlier corrections: `weights` (its relations' robust
+/// weights, the active ones in order, then the new one's) has an earlier relation that held on
+/// the map as shown (`before`, empty when every one held) yielding, or the new one yields to
+/// them (`contested`, as [`contradicted_note`]).
+fn contradicts(weights: &[f64], before: &[f64], contested: bool) -> bool {
+    let Some((new, earlier)) = weights.split_last() else {
         return false;
     };
     let newly = earlier
         .iter()
         .enumerate()
         .any(|(k, w)| *w < YIELDED && before.get(k).is_none_or(|b| *b >= YIELDED));
-    newly || (solved.contested && *new < YIELDED)
+    newly || (contested && *new < YIELDED)
 }
 
 /// The note naming the relations that yield where corrections contradict one another
@@ -452,7 +454,9 @@ impl CorrectionEngine {
         } else {
             Vec::new()
         };
-        if p.near_tie_reading && contradicts(&solved, &before_weights) {
+        if p.near_tie_reading
+            && contradicts(&solved.relation_weights, &before_weights, solved.contested)
+        {
             if let Some((alt, alt_solved)) = self.near_tie_reading(
                 scans,
                 current,
@@ -580,9 +584,11 @@ impl CorrectionEngine {
     /// that held on the map as shown, `before_weights`, yields now, or the new one yields to
     /// them) and a segment's snap was a near tie ([`Interpretation::near_ties`]), the drawing
     /// is read again with that segment on the other line of the tie (each alone, then both).
-    /// The first reading that contradicts none of them is returned with a note; `None` keeps
+    /// The first reading that contradicts none of them and costs the robot's measurements (the
+    /// chi2 of the map's own factors) less than the first is returned with a note; `None` keeps
     /// the first (docs/ALGORITHM.md §I.18). A person who drew between two lines of nearly equal
-    /// weight meant the one consistent with what they said before.
+    /// weight meant the one consistent with what they said before, unless what they said before
+    /// is what the measurements contradict.
     #[allow(clippy::too_many_arguments)]
     fn near_tie_reading(
         &mut self,
@@ -642,7 +648,7 @@ impl CorrectionEngine {
             } else {
                 before_weights
             };
-            if contradicts(&alt_solved, weights) {
+            if contradicts(&alt_solved.relation_weights, weights, alt_solved.contested) {
                 continue;
             }
             // Which of two contradicting statements is wrong, the new one or the earlier, the
@@ -793,7 +799,20 @@ fn python_g(x: f64) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::contradicted_note;
+    use super::{contradicted_note, contradicts};
+
+    #[test]
+    fn a_solution_contradicts_earlier_corrections_when_one_starts_to_yield_or_it_yields_to_them() {
+        assert!(!contradicts(&[], &[], false));
+        assert!(!contradicts(&[1.0, 0.9, 1.0], &[], false));
+        assert!(contradicts(&[1.0, 0.2, 1.0], &[], false));
+        // One that yielded already on the map as shown is not this correction's doing.
+        assert!(!contradicts(&[1.0, 0.2, 1.0], &[1.0, 0.3], false));
+        assert!(contradicts(&[0.1, 0.2, 1.0], &[1.0, 0.3], false));
+        // The new one yielding: to earlier corrections (contested), or to the odometry alone.
+        assert!(contradicts(&[1.0, 0.1], &[], true));
+        assert!(!contradicts(&[1.0, 0.1], &[], false));
+    }
 
     #[test]
     fn the_note_names_the_relations_that_yield() {
