@@ -9,10 +9,11 @@ use std::time::Instant;
 use super::backpropagate;
 use super::engine::{fit_line_at, CorrectionEngine, CorrectionSpec, HumanWeights};
 use super::explicit::explicit_transform;
-use super::interpretation::{interpret, span, Drawing, InterpretParams, Interpretation, NEAR_TIE};
+use super::interpretation::{interpret, span, Drawing, InterpretParams, Interpretation};
 use super::scans::{Row, Scans};
 use crate::error::{input, HitlError, Result};
 use crate::factors::{FactorClass, RelationMode};
+use crate::interpret::NEAR_TIE;
 use crate::metric::{self, MetricParams};
 use crate::se2::{wrap_angle, Pose2};
 use crate::solver::{SolveReport, SolverParams};
@@ -184,19 +185,25 @@ pub struct Solved {
 /// `hitl_slam.solve.downweighted`).
 const YIELDED: f64 = 0.5;
 
-/// Whether a solution contradicts earlier corrections: `weights` (its relations' robust
-/// weights, the active ones in order, then the new one's) has an earlier relation that held on
-/// the map as shown (`before`, empty when every one held) yielding, or the new one yields to
-/// them (`contested`, as [`contradicted_note`]).
-fn contradicts(weights: &[f64], before: &[f64], contested: bool) -> bool {
-    let Some((new, earlier)) = weights.split_last() else {
-        return false;
-    };
-    let newly = earlier
+/// The earlier relations (indices into `weights`, the active corrections' robust weights in
+/// order, then the new one's) that yield now but held on the map as shown (`before`, empty when
+/// every one held): the ones the new correction makes yield.
+fn newly_yielded<'a>(weights: &'a [f64], before: &'a [f64]) -> impl Iterator<Item = usize> + 'a {
+    let earlier = weights.split_last().map_or(&[][..], |(_, e)| e);
+    earlier
         .iter()
         .enumerate()
-        .any(|(k, w)| *w < YIELDED && before.get(k).is_none_or(|b| *b >= YIELDED));
-    newly || (contested && *new < YIELDED)
+        .filter(|(k, w)| **w < YIELDED && before.get(*k).is_none_or(|b| *b >= YIELDED))
+        .map(|(k, _)| k)
+}
+
+/// Whether a solution contradicts earlier corrections: an earlier relation that held yields
+/// ([`newly_yielded`]), or the new one yields to them (`contested`, as [`contradicted_note`]).
+fn contradicts(weights: &[f64], before: &[f64], contested: bool) -> bool {
+    let Some(new) = weights.last() else {
+        return false;
+    };
+    newly_yielded(weights, before).next().is_some() || (contested && *new < YIELDED)
 }
 
 /// The note naming the relations that yield where corrections contradict one another
@@ -207,11 +214,8 @@ fn contradicts(weights: &[f64], before: &[f64], contested: bool) -> bool {
 /// yielded already keeps yielding to whatever contradicted it). `None` when every relation holds.
 fn contradicted_note(weights: &[f64], before: &[f64], contested: bool) -> Option<String> {
     let (new, earlier) = weights.split_last()?;
-    let yielded: Vec<String> = earlier
-        .iter()
-        .enumerate()
-        .filter(|(k, w)| **w < YIELDED && before.get(*k).is_none_or(|b| *b >= YIELDED))
-        .map(|(k, w)| format!("#{} (weight {w:.2})", k + 1))
+    let yielded: Vec<String> = newly_yielded(weights, before)
+        .map(|k| format!("#{} (weight {:.2})", k + 1, earlier[k]))
         .collect();
     let mut parts = Vec::new();
     if !yielded.is_empty() {
@@ -613,17 +617,19 @@ impl CorrectionEngine {
         if let (Some(a), Some(b)) = (tie_a, tie_b) {
             tries.push(Drawing { a, b, ..*drawing });
         }
-        let yielded = |s: &Solved| -> usize {
-            s.relation_weights.split_last().map_or(0, |(_, earlier)| {
-                earlier
-                    .iter()
-                    .enumerate()
-                    .filter(|(k, w)| {
-                        **w < YIELDED && before_weights.get(*k).is_none_or(|b| *b >= YIELDED)
-                    })
-                    .count()
-            })
+        if tries.is_empty() {
+            return Ok(None);
+        }
+        // What the alternatives are judged against, once: the weights of the map as shown (if
+        // the first reading did not need them) and the first reading's cost to the odometry.
+        let fresh;
+        let weights = if before_weights.is_empty() && !active.is_empty() {
+            fresh = self.relation_weights_at(scans, current, active, p)?;
+            fresh.as_slice()
+        } else {
+            before_weights
         };
+        let first = self.base_chi2(&solved.poses)?;
         for alt_drawing in tries {
             // A reading the engine refuses is no alternative; the first one stands.
             let alt = match interpret(scans, current, &alt_drawing, &p.interpret, false) {
@@ -640,24 +646,13 @@ impl CorrectionEngine {
                     Err(HitlError::Rejected(_)) => continue,
                     Err(e) => return Err(e),
                 };
-            // The weights of the map as shown, if the first reading did not need them.
-            let fresh;
-            let weights = if before_weights.is_empty() && !active.is_empty() {
-                fresh = self.relation_weights_at(scans, current, active, p)?;
-                fresh.as_slice()
-            } else {
-                before_weights
-            };
             if contradicts(&alt_solved.relation_weights, weights, alt_solved.contested) {
                 continue;
             }
             // Which of two contradicting statements is wrong, the new one or the earlier, the
             // robot's own measurements decide (as between a colocation and its collinear
             // reading, §I.3): the other reading is kept only where it costs them less.
-            let (first, second) = (
-                self.base_chi2(&solved.poses)?,
-                self.base_chi2(&alt_solved.poses)?,
-            );
+            let second = self.base_chi2(&alt_solved.poses)?;
             if second.partial_cmp(&first) != Some(std::cmp::Ordering::Less) {
                 continue;
             }
@@ -667,7 +662,7 @@ impl CorrectionEngine {
                 .map(|(name, _, _)| name.to_string())
                 .collect();
             let mut why = Vec::new();
-            let k = yielded(solved);
+            let k = newly_yielded(&solved.relation_weights, before_weights).count();
             if k > 0 {
                 why.push(format!(
                     "{k} earlier correction{} would yield",

@@ -59,16 +59,11 @@ pub struct Interpretation {
     pub log_likelihood: [f64; 2],
     pub notes: Vec<String>,
     /// Per drawn segment (a, b, as drawn, whatever `swapped`): where its snap was a near tie
-    /// (the next line within [`NEAR_TIE`] of the score of the one chosen), the drawing moved
+    /// (`Snap::runner_up_segment`), the drawing moved
     /// onto that next line: the other reading, tried where this one contradicts earlier
     /// corrections (docs/ALGORITHM.md §I.18).
     pub near_ties: [Option<[[f64; 2]; 2]>; 2],
 }
-
-/// A snap whose next line scores within this much of the chosen one's (`ln` of support, less
-/// the closeness and direction terms: a factor of `e` in support at equal closeness) is a near
-/// tie: the drawing alone does not say which of the two lines it meant.
-pub const NEAR_TIE: f64 = 1.0;
 
 fn rejected<T>(msg: impl Into<String>) -> Result<T> {
     Err(HitlError::Rejected(msg.into()))
@@ -1010,13 +1005,8 @@ pub fn interpret(
 fn near_ties(paired: &Paired) -> [Option<[[f64; 2]; 2]>; 2] {
     let mut out = [None, None];
     for s in [&paired.a, &paired.b] {
-        let Some(snap) = s.fit.snap.as_ref() else {
-            continue;
-        };
-        if let Some(other) = snap.runner_up_segment {
-            if snap.score - snap.runner_up <= NEAR_TIE {
-                out[usize::from(s.name == 'b')] = Some([other.a, other.b]);
-            }
+        if let Some(other) = s.fit.snap.as_ref().and_then(|snap| snap.runner_up_segment) {
+            out[usize::from(s.name == 'b')] = Some([other.a, other.b]);
         }
     }
     out

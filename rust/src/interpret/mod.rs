@@ -17,7 +17,7 @@ pub use em::{
     responsibilities, EmFit, EmParams, LineFit, MAX_MIXING, MIN_MIXING,
 };
 pub use grid::{candidates, candidates_brute_force, GridIndex};
-pub use snap::{snap, Snap, SnapParams};
+pub use snap::{snap, Snap, SnapParams, NEAR_TIE};
 
 use crate::error::{HitlError, Result};
 use crate::se2::transform;

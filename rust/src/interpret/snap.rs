@@ -79,10 +79,16 @@ pub struct Snap {
     /// The best score among lines at least `3 sigma` away from the chosen one (at the drawn
     /// midpoint), `-inf` when there is none: how clear the choice was.
     pub runner_up: f64,
-    /// The drawn endpoints projected onto that runner-up line (same order as drawn), `None`
-    /// when there is none: the other reading of a near tie (docs/ALGORITHM.md §I.18).
+    /// The drawn endpoints projected onto that runner-up line (same order as drawn) where it
+    /// scores within [`NEAR_TIE`] of the chosen one, `None` otherwise: the other reading of a
+    /// near tie (docs/ALGORITHM.md §I.18).
     pub runner_up_segment: Option<Segment>,
 }
+
+/// A runner-up line scoring within this much of the chosen one (`ln` of support, less the
+/// closeness and direction terms: a factor of `e` in support at equal closeness) is a near tie:
+/// the drawing alone does not say which of the two lines it meant.
+pub const NEAR_TIE: f64 = 1.0;
 
 /// Largest turn searched, whatever the segment's length (radians).
 const MAX_TURN_CAP: f64 = 0.35;
@@ -227,7 +233,9 @@ pub fn snap(
         (Segment::new(a, b), [ea, eb], turn)
     };
     let (segment, moved, turn) = on_line(turn, offset);
-    let runner_up_segment = other.map(|f| on_line(f.1, f.2).0);
+    let runner_up_segment = other
+        .filter(|f| score - f.0 <= NEAR_TIE)
+        .map(|f| on_line(f.1, f.2).0);
     Ok(Some(Snap {
         segment,
         moved,
@@ -337,6 +345,7 @@ mod tests {
         let clear = run(&flat, Segment::new([1.0, 0.01], [5.0, 0.0])).unwrap();
         assert!(clear.segment.a[1].abs() < 0.02, "{clear:?}");
         assert!(clear.score - clear.runner_up > 1.0, "{clear:?}");
+        assert!(clear.runner_up_segment.is_none(), "{clear:?}");
     }
 
     #[test]
