@@ -348,3 +348,33 @@ def test_human_straightens_a_bent_pass() -> None:
     after = [i for i in human.inconsistencies(result.poses) if (i.a, i.b) in human.splits]
     assert before > 1.0
     assert after == []  # every pass is straight again (within the visibility thresholds)
+
+
+@pytest.mark.parametrize("kind", ["jump", "slip"])
+def test_a_pass_across_a_jump_or_slip_is_two_copies_to_the_person(kind: str) -> None:
+    # A heading jump or a slip inside one pass by a wall leaves that wall as two copies on the
+    # damaged map. A careful person sees two copies and draws on each; fitting one stroke over
+    # both would draw a line on neither (benches/README.md §12, Freiburg 079 slip: 9 of 12
+    # drawings refused that way).
+    from hitl_slam.sim.fault_models import damaged
+    from hitl_slam.sim.odometry import Slip
+    from hitl_slam.sim.scenario import fit_points
+
+    base = parallel_corridors(seed=0, heading_jump_deg=0.0, noise=NO_NOISE)
+    longest = max(SimulatedHuman(base, 0).visits, key=lambda v: v.last - v.first)
+    q = (longest.first + longest.last) // 2
+    fault = HeadingJump(q, math.radians(12.0)) if kind == "jump" else Slip(q, 0.0, 0.8)
+    s = damaged(base, [fault], 0, noise=NO_NOISE)
+    human = SimulatedHuman(s, 0)
+    wall = [v for v in human.visits if v.wall == longest.wall]
+    assert not [v for v in human.visits if v.first < q <= v.last]
+    assert any(v.last == q - 1 for v in wall) or any(v.first == q for v in wall)
+    for v in human.visits:
+        pts = human._points(s.map.poses, v)
+        fit = fit_points(pts)
+        spread = float(np.std([fit.distance(p) for p in pts]))
+        assert spread < 0.05, (v, spread)  # every visit is one copy, on one line
+    # The whole pass, as one visit, is not.
+    pts = human._points(s.map.poses, longest)
+    fit = fit_points(pts)
+    assert float(np.std([fit.distance(p) for p in pts])) > 0.1

@@ -19,6 +19,7 @@ from hitl_slam.errors import CorrectionRejected, InputError
 from hitl_slam.geometry import to_world
 from hitl_slam.interpret import interpret
 from hitl_slam.session import Session
+from hitl_slam.sim.odometry import HeadingJump, Slip
 from hitl_slam.sim.scenario import Scenario, WallFit, angle_between, fit_points, spacing_between
 
 __all__ = ["Inconsistency", "RepairResult", "RepairStep", "SimulatedHuman", "Visit", "repair"]
@@ -63,6 +64,9 @@ class Inconsistency:
 class SimulatedHuman:
     """A person who knows the building (the scenario's walls and feature pairs) and corrects the
     map one drawing at a time.
+
+    A visit is one pass by a wall, broken where a heading jump or a slip of the scenario's faults
+    fell within it: before and after the fault the wall is two copies on the damaged map.
 
     What they see as wrong (:meth:`inconsistencies`): two visits at least ``min_separation``
     poses apart in time, either of the same wall and displaced by more than ``offset_threshold``
@@ -145,11 +149,21 @@ class SimulatedHuman:
         np.add.at(counts, (w, p), 1)
         visits = []
         gap = self.config.visit_gap
+        breaks = np.array(
+            sorted(f.pose for f in s.faults if isinstance(f, HeadingJump | Slip)), dtype=np.int64
+        )
         for wall in range(counts.shape[0]):
             seen = np.flatnonzero(counts[wall] >= self.config.min_points_per_pose)
             if seen.size == 0:
                 continue
-            starts = np.concatenate([[0], np.flatnonzero(np.diff(seen) > gap) + 1])
+            # A pass is broken where the robot lost sight of the wall for more than the visit
+            # gap, and where a jump or slip fell within it: the wall before and after such a
+            # fault is two copies on the damaged map, which a person sees and draws apart.
+            broken = np.diff(seen) > gap
+            # Fault at pose q: between poses q - 1 and q. seen[i] < q <= seen[i + 1] breaks i.
+            at = np.searchsorted(seen, breaks, side="left") - 1
+            broken[at[(at >= 0) & (at < seen.size - 1)]] = True
+            starts = np.concatenate([[0], np.flatnonzero(broken) + 1])
             for run in np.split(seen, starts[1:]):
                 total = int(counts[wall, run[0] : run[-1] + 1].sum())
                 if total >= min_points and run.size >= 5:
