@@ -378,3 +378,33 @@ def test_a_pass_across_a_jump_or_slip_is_two_copies_to_the_person(kind: str) -> 
     pts = human._points(s.map.poses, longest)
     fit = fit_points(pts)
     assert float(np.std([fit.distance(p) for p in pts])) > 0.1
+
+
+def test_passes_that_coincide_on_the_map_are_one_line_to_the_person() -> None:
+    # Three passes by each wall; the middle lap 0.8 m off, the first and last where they belong.
+    # On the last pass the person sees one line (the first and last passes coincide) and a copy
+    # 0.8 m away: they draw on that line even with a 15 cm hand, instead of looking for a
+    # stretch clear of the coinciding pass and finding none long enough (docs/ALGORITHM.md
+    # §I.19; the lost-poses room, slip, seed 3, ended with a wall doubled that way).
+    from hitl_slam.sim.careful import CarefulPerson
+    from hitl_slam.sim.scenario import fit_points
+
+    s = lost_poses_room(seed=0, drift_deg_per_m=0.0, noise=NO_NOISE)
+    person = CarefulPerson(s, 0, endpoint_noise=0.15)
+    wall = [v for v in person.visits if v.wall == 2]
+    assert len(wall) == 3
+    poses = s.truth.copy()
+    poses[wall[0].last + 1 : wall[2].first, 1] += 0.8
+    last = wall[2]
+    drawn = person._segment(poses, last, whole=False)
+    assert drawn is not None
+    line = fit_points(person._points(poses, last))
+    ends = np.array(drawn)
+    assert max(line.distance(e) for e in ends) < 0.6  # 4 sigma of a 15 cm hand
+    assert np.hypot(*(ends[1] - ends[0])) >= 8 * 0.15
+    # What they see wrong is the middle copy against the line the others make, and they draw it.
+    issues = [i for i in person.inconsistencies(poses) if i.a.wall == i.b.wall == 2]
+    assert {(i.a, i.b) for i in issues} == {(wall[0], wall[1]), (wall[1], wall[2])}
+    for issue in issues:
+        assert issue.offset_m > 0.5
+        assert person._draw_pair(poses, issue) is not None

@@ -66,7 +66,9 @@ class SimulatedHuman:
     map one drawing at a time.
 
     A visit is one pass by a wall, broken where a heading jump or a slip of the scenario's faults
-    fell within it: before and after the fault the wall is two copies on the damaged map.
+    fell within it: before and after the fault the wall is two copies on the damaged map. Passes
+    that coincide on the map as shown (within the thresholds below) are one line to them: they
+    draw on it, not on a stretch clear of the other pass (docs/ALGORITHM.md §I.19).
 
     What they see as wrong (:meth:`inconsistencies`): two visits at least ``min_separation``
     poses apart in time, either of the same wall and displaced by more than ``offset_threshold``
@@ -298,12 +300,22 @@ class SimulatedHuman:
         lo, hi = (float(q) for q in np.quantile(proj, self.along))
         if hi - lo < 0.3:
             return None
-        # Other copies of the wall: other passes (not the pass a third of a visit belongs to).
-        others = [
-            self._points(poses, v)
-            for v in self.visits
-            if v.wall == visit.wall and (v.last < visit.first or v.first > visit.last)
-        ]
+        # Other copies of the wall: other passes (not the pass a third of a visit belongs to),
+        # except those that coincide with this one on the map as shown (within the thresholds
+        # below which the person sees no disagreement): to the eye they are the same line, and
+        # a stroke on it means both.
+        others = []
+        for v in self.visits:
+            if v.wall != visit.wall or not (v.last < visit.first or v.first > visit.last):
+                continue
+            q = self._points(poses, v)
+            other = fit_points(q)
+            if (
+                angle_between(fit, other) <= self.angle_threshold_deg
+                and spacing_between(fit, other) <= self.offset_threshold
+            ):
+                continue
+            others.append(q)
         clear = 6.0 * self.config.sigma_h  # twice the default candidate band
         best, best_gap = (lo, hi), -1.0
         for f0, f1 in _WINDOWS:
