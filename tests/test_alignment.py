@@ -26,14 +26,17 @@ from hitl_slam.alignment import (
 )
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import Interpretation, Mode
+from hitl_slam.corrections_file import Apply, read_corrections
 from hitl_slam.errors import InputError
-from hitl_slam.full_evaluation import LASER, evaluate_run
+from hitl_slam.full_evaluation import LASER, damaged_scenario, evaluate_run
 from hitl_slam.journal import DamagedSession
 from hitl_slam.map import Map
 from hitl_slam.metrics import ate, inconsistency
 from hitl_slam.session import AlignStep, EntryStatus, Session
 from hitl_slam.sim import lost_poses_room
 from hitl_slam.sim.fault_models import damaged, jump
+
+DATA = Path(__file__).parent / "data"
 
 needs_logs = pytest.mark.skipif(
     not (LASER / "orebro-corrected.log.gz").is_file(),
@@ -468,12 +471,20 @@ def test_where_a_wrong_scan_match_folds_the_map_the_alignment_is_refused(
     m^2), every guard passing. Both solves are now set aside and the alignment refused with the
     figures: the map, the journal and the undo stack are left as they were.
 
-    The person's tenth drawing there is a near tie that a second reading (docs/ALGORITHM.md
-    §I.18) now reads on the other line, and that run ends repaired (0.21 degrees) before any
-    fold; the state the fold came from is the one without that reading."""
+    The state is rebuilt from that run's twelve drawings (tests/data/orebro-laps-15cm-seed2.jsonl,
+    written by the person as they drew then, before §I.19 changed what they see), replayed on
+    the same damaged map without the second reading of a near tie (docs/ALGORITHM.md §I.18),
+    which would read the tenth drawing on the other line and leave the map repaired (0.21
+    degrees) before any fold."""
+    scenario, _ = damaged_scenario("Orebro", "laps", 0.15, seed=2)
+    drawings = read_corrections(DATA / "orebro-laps-15cm-seed2.jsonl")
     out: dict[str, Any] = {}
-
-    def at_end(scenario: Any, session: Session) -> None:
+    config = DEFAULT.replace(near_tie_reading=False)
+    with Session.new(scenario.map, config=config) as session:
+        for step in drawings:
+            assert isinstance(step, Apply)
+            session.apply(step.drawn)
+        assert len(session.active) == 12
         out["poses"] = np.array(session.poses)
         out["undo"] = session.can_undo
         with pytest.raises(AlignmentRefused, match="contradict what you said") as refused:
@@ -484,8 +495,6 @@ def test_where_a_wrong_scan_match_folds_the_map_the_alignment_is_refused(
         out["aligned"] = session.aligned
         session.write_journal(tmp_path / "orebro.hitl")
 
-    config = DEFAULT.replace(near_tie_reading=False)
-    evaluate_run("Orebro", "laps", 0.15, seed=2, align=False, on_end=at_end, config=config)
     assert np.array_equal(out["after"], out["poses"])
     assert out["undo_after"] == out["undo"]
     assert not out["aligned"]

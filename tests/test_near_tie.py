@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -23,12 +24,15 @@ import pytest
 
 from hitl_slam.config import Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation
+from hitl_slam.corrections_file import Apply, read_corrections
+from hitl_slam.errors import CorrectionRejected
 from hitl_slam.evaluation import LASER
-from hitl_slam.full_evaluation import evaluate_run
+from hitl_slam.full_evaluation import damaged_scenario
 from hitl_slam.map import Map
 from hitl_slam.pipeline import apply_correction
-from hitl_slam.sim.careful import DrawingStyle
+from hitl_slam.session import Session
 
+DATA = Path(__file__).parent / "data"
 REREAD = "read on the next line"
 CONTRADICTS = ("yield", "holds only in part")
 
@@ -41,37 +45,35 @@ pytestmark = pytest.mark.skipif(
 def test_a_near_tie_that_contradicts_earlier_corrections_is_read_on_the_next_line() -> None:
     seen: list[dict[str, Any]] = []
 
-    def applier(_scenario: object, _person: object) -> Any:
-        def apply(
-            map: Map,
-            poses: np.ndarray,
-            drawn: DrawnCorrection,
-            active: Sequence[Interpretation],
-            config: Config,
-        ) -> Any:
-            result = apply_correction(map, poses, drawn, active, config)
-            notes = result.interpretation.notes
-            if not seen and any(REREAD in n for n in notes):
-                # The same drawing on the same map without the second reading.
-                first = apply_correction(
-                    map, poses, drawn, active, dataclasses.replace(config, near_tie_reading=False)
-                )
-                seen.append({"kept": result, "first": first, "active": len(active)})
-            return result
+    def apply(
+        map: Map,
+        poses: np.ndarray,
+        drawn: DrawnCorrection,
+        active: Sequence[Interpretation],
+        config: Config,
+    ) -> Any:
+        result = apply_correction(map, poses, drawn, active, config)
+        notes = result.interpretation.notes
+        if not seen and any(REREAD in n for n in notes):
+            # The same drawing on the same map without the second reading.
+            first = apply_correction(
+                map, poses, drawn, active, dataclasses.replace(config, near_tie_reading=False)
+            )
+            seen.append({"kept": result, "first": first, "active": len(active)})
+        return result
 
-        return apply
-
-    run = evaluate_run(
-        "Freiburg 079",
-        "drift",
-        0.10,
-        seed=5,
-        max_corrections=25,
-        align=False,
-        applier=applier,
-        person_style=DrawingStyle(overshoot=0.4, side=0.2),
-    )
-    assert seen, f"no drawing was read again in {len(run.drawings)} drawings"
+    # The run's first 23 drawings, as that person drew them (before docs/ALGORITHM.md §I.19
+    # changed what the simulated person sees), replayed on the same damaged map.
+    scenario, _ = damaged_scenario("Freiburg 079", "drift", 0.10, seed=5)
+    drawings = read_corrections(DATA / "freiburg-079-drift-sloppy-seed5.jsonl")
+    with Session.new(scenario.map, applier=apply) as session:
+        for step in drawings:
+            assert isinstance(step, Apply)
+            try:
+                session.apply(step.drawn)
+            except CorrectionRejected:
+                continue
+    assert seen, f"no drawing was read again in {len(drawings)} drawings"
     kept, first = seen[0]["kept"], seen[0]["first"]
     note = next(n for n in kept.interpretation.notes if REREAD in n)
     # The first reading contradicted earlier corrections, and its note says so; the one kept

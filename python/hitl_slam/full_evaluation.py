@@ -43,6 +43,7 @@ __all__ = [
     "FULL_MAPS",
     "Drawing",
     "Run",
+    "damaged_scenario",
     "full_report",
     "run_full",
     "runs_json",
@@ -194,6 +195,29 @@ def _selected_meant(h: Interpretation, issue: Inconsistency | None) -> bool | No
     return (on(xa, a) and on(xb, b)) or (on(xa, b) and on(xb, a))
 
 
+def damaged_scenario(
+    label: str, fault: str, noise_m: float, seed: int
+) -> tuple[Scenario, np.random.Generator]:
+    """Map ``label`` damaged by fault model ``fault`` as the run of :func:`evaluate_run` with
+    endpoint noise ``noise_m`` at ``seed`` damages it, and the random stream of that run's
+    person (tests replay a run's drawings on the same damaged map from here)."""
+    from hitl_slam.sim.fault_models import FAULT_MODELS, damaged
+    from hitl_slam.sim.scenario import Scenario
+
+    if fault not in FAULT_MODELS:
+        raise InputError(f"unknown fault model {fault!r}; they are: {', '.join(FAULT_MODELS)}")
+    # One stream per (map, fault, noise), all from the seed: nothing depends on the run order.
+    key = [seed, FULL_MAPS.index(label), list(FAULT_MODELS).index(fault), int(noise_m * 1000)]
+    fault_rng, odo_rng, person_rng = (
+        np.random.default_rng(s) for s in np.random.SeedSequence(key).spawn(3)
+    )
+    base = _base_scenario(label, seed)
+    assert isinstance(base, Scenario)
+    faults = FAULT_MODELS[fault](base.truth, fault_rng)
+    scenario = damaged(base, faults, int(odo_rng.integers(2**31)), name=f"{label} ({fault})")
+    return scenario, person_rng
+
+
 def evaluate_run(
     label: str,
     fault: str,
@@ -220,21 +244,9 @@ def evaluate_run(
     from hitl_slam.metrics import ate, inconsistency
     from hitl_slam.session import Session
     from hitl_slam.sim.careful import CarefulPerson, DrawingStyle
-    from hitl_slam.sim.fault_models import FAULT_MODELS, damaged
-    from hitl_slam.sim.scenario import Scenario
 
-    if fault not in FAULT_MODELS:
-        raise InputError(f"unknown fault model {fault!r}; they are: {', '.join(FAULT_MODELS)}")
     start = time.perf_counter()
-    # One stream per (map, fault, noise), all from the seed: nothing depends on the run order.
-    key = [seed, FULL_MAPS.index(label), list(FAULT_MODELS).index(fault), int(noise_m * 1000)]
-    fault_rng, odo_rng, person_rng = (
-        np.random.default_rng(s) for s in np.random.SeedSequence(key).spawn(3)
-    )
-    base = _base_scenario(label, seed)
-    assert isinstance(base, Scenario)
-    faults = FAULT_MODELS[fault](base.truth, fault_rng)
-    scenario = damaged(base, faults, int(odo_rng.integers(2**31)), name=f"{label} ({fault})")
+    scenario, person_rng = damaged_scenario(label, fault, noise_m, seed)
     m = scenario.map
     truth = scenario.truth
 
@@ -335,7 +347,7 @@ def evaluate_run(
         inconsistency_truth=inc_truth.total_m2,
         finished=finished,
         time_s=time.perf_counter() - start,
-        faults=_describe(faults),
+        faults=_describe(list(scenario.faults)),
         alignment=alignment,
         before_alignment=before_alignment,
     )
