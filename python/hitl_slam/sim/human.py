@@ -309,12 +309,8 @@ class SimulatedHuman:
             if v.wall != visit.wall or not (v.last < visit.first or v.first > visit.last):
                 continue
             q = self._points(poses, v)
-            other = fit_points(q)
-            if (
-                angle_between(fit, other) <= self.angle_threshold_deg
-                and spacing_between(fit, other) <= self.offset_threshold
-            ):
-                continue
+            if self._same_wall(visit, v, fit, fit_points(q)).score <= 1.0:
+                continue  # not visibly apart (the test of :meth:`inconsistencies`)
             others.append(q)
         clear = 6.0 * self.config.sigma_h  # twice the default candidate band
         best, best_gap = (lo, hi), -1.0
