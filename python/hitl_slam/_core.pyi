@@ -241,6 +241,7 @@ class CorrectionEngine:
         k1: float,
         k2: float,
         average_points: bool = False,
+        sigma_scan: float = 0.0,
         even_centroids: bool = False,
         method: str = "lm",
         max_iterations: int = 100,
@@ -317,6 +318,7 @@ class Graph:
         k1: float,
         k2: float,
         average_points: bool = False,
+        sigma_scan: float = 0.0,
     ) -> tuple[int, int]: ...
     def optimize_with_lines(
         self,

@@ -65,6 +65,11 @@ class Config:
     visit_gap: int = 10  # [poses] a gap larger than this in selected poses starts a new visit
     # §4.3 factors
     sigma_f: float = 0.03  # [m]
+    # [m] one scan's error against a wall that all its points share (the wall's bends and
+    # roughness, the sensor's calibration): a pose's n points on a drawn wall place it to
+    # sqrt(sigma_f^2 / n + sigma_scan^2), not sigma_f / sqrt(n) (docs/ALGORITHM.md §I.20);
+    # 0: every point independent, as the paper's R_a / R_b
+    sigma_scan: float = 0.0
     k1: float = 1e6  # [1/m^2]
     k2: float = 1e7  # [1/rad^2]
     average_points: bool = False
@@ -182,6 +187,8 @@ class Config:
         ):
             if getattr(self, name) <= 0:
                 raise InputError(f"config {name} must be > 0")
+        if not self.sigma_scan >= 0:
+            raise InputError("config sigma_scan must be >= 0")
         if self.search_band > 0 and self.drawing_sigma <= 0:
             raise InputError("config drawing_sigma must be > 0 when search_band is > 0")
         if not self.consistency_guard < 1:

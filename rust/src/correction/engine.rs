@@ -33,14 +33,20 @@ pub struct CorrectionSpec {
     pub b: Vec<PoseObservations>,
 }
 
-/// The weights of the human factors (`Config.sigma_f`, `k1`, `k2`, `average_points`,
-/// `colocation_even_centroids`).
+/// The weights of the human factors (`Config.sigma_f`, `sigma_scan`, `k1`, `k2`,
+/// `average_points`, `colocation_even_centroids`).
 #[derive(Clone, Copy, Debug)]
 pub struct HumanWeights {
     pub sigma_f: f64,
     pub k1: f64,
     pub k2: f64,
     pub average_points: bool,
+    /// [m] One scan's error against a wall it saw that its points share (the wall's roughness
+    /// and bends, the sensor's calibration): a pose's `n` points on a line place it no better
+    /// than `sqrt(sigma_f^2 / n + sigma_scan^2)` across the line, so each of them weighs
+    /// `1 / sqrt(sigma_f^2 + n sigma_scan^2)` (docs/ALGORITHM.md §I.20). 0: every point is
+    /// independent (the paper's R_a, R_b).
+    pub sigma_scan: f64,
     /// A colocation's centroids weigh every stretch of the wall alike
     /// ([`super::centroid::along_wall_weights`], docs/ALGORITHM.md §I.15).
     pub even_centroids: bool,
@@ -51,6 +57,9 @@ impl HumanWeights {
         if !(self.sigma_f.is_finite() && self.sigma_f > 0.0) {
             return input(format!("sigma_f must be positive, got {}", self.sigma_f));
         }
+        if !(self.sigma_scan.is_finite() && self.sigma_scan >= 0.0) {
+            return input(format!("sigma_scan must be >= 0, got {}", self.sigma_scan));
+        }
         for (name, k) in [("k1", self.k1), ("k2", self.k2)] {
             if !(k.is_finite() && k >= 0.0) {
                 return input(format!("{name} must be a finite number >= 0, got {k}"));
@@ -59,11 +68,15 @@ impl HumanWeights {
         Ok(())
     }
 
-    fn point_weight(&self, count: usize) -> f64 {
+    /// The weight of each of the `at_pose` points one pose contributes to a segment of `count`
+    /// points in all.
+    fn point_weight(&self, count: usize, at_pose: usize) -> f64 {
+        let shared = at_pose as f64 * self.sigma_scan * self.sigma_scan;
+        let per_point = (self.sigma_f * self.sigma_f + shared).sqrt();
         if self.average_points {
-            1.0 / (self.sigma_f * (count as f64).sqrt())
+            1.0 / (per_point * (count as f64).sqrt())
         } else {
-            1.0 / self.sigma_f
+            1.0 / per_point
         }
     }
 }
@@ -121,10 +134,7 @@ impl CorrectionSpec {
     ) -> Result<Vec<Box<dyn Factor>>> {
         let lb = la + 1;
         let count = |set: &[PoseObservations]| set.iter().map(|(_, p)| p.len()).sum::<usize>();
-        let (wa, wb) = (
-            w.point_weight(count(&self.a)),
-            w.point_weight(count(&self.b)),
-        );
+        let (na, nb) = (count(&self.a), count(&self.b));
         let mut factors: Vec<Box<dyn Factor>> = Vec::with_capacity(self.num_factors());
         let mut shares = Vec::with_capacity(self.a.len() + self.b.len());
         let even = match poses {
@@ -134,7 +144,7 @@ impl CorrectionSpec {
             )),
             _ => None,
         };
-        for (set, weight, is_a) in [(&self.a, wa, true), (&self.b, wb, false)] {
+        for (set, total, is_a) in [(&self.a, na, true), (&self.b, nb, false)] {
             for (k, (i, pts)) in set.iter().enumerate() {
                 // Each point's weight in its centroid: 1, or the wall it stands for.
                 let along = even
@@ -160,7 +170,7 @@ impl CorrectionSpec {
                     *i,
                     line,
                     pts.clone(),
-                    weight,
+                    w.point_weight(total, pts.len()),
                 )?));
             }
         }
@@ -397,6 +407,7 @@ mod tests {
     fn weights() -> HumanWeights {
         HumanWeights {
             sigma_f: 0.03,
+            sigma_scan: 0.0,
             k1: 1e6,
             k2: 1e7,
             average_points: false,
@@ -522,5 +533,25 @@ mod tests {
             .is_err());
         let (_, r) = engine.solve(truth, &[], &w, &params()).unwrap();
         assert!(r.final_chi2 < 1e-12);
+    }
+
+    #[test]
+    fn a_scan_places_its_pose_no_better_than_sigma_scan() {
+        // n points of one pose at weight w inform its offset across the line by n w^2: without
+        // sigma_scan, n / sigma_f^2 (unbounded in n); with it, 1 / (sigma_f^2 / n + sigma_scan^2).
+        let mut w = weights();
+        for n in [1usize, 10, 1000] {
+            let plain = w.point_weight(5000, n);
+            assert!((plain - 1.0 / 0.03).abs() < 1e-12);
+        }
+        w.sigma_scan = 0.01;
+        for n in [1usize, 10, 1000] {
+            let info = n as f64 * w.point_weight(5000, n).powi(2);
+            let want = 1.0 / (0.03f64.powi(2) / n as f64 + 0.01f64.powi(2));
+            assert!((info - want).abs() < 1e-9 * want, "n={n}: {info} vs {want}");
+            assert!(info < 1.0 / 0.01f64.powi(2));
+        }
+        w.sigma_scan = -1.0;
+        assert!(w.validate().is_err());
     }
 }

@@ -166,6 +166,7 @@ fn apply_params(
         interpret: interpret_params(config, sigma_h, None)?,
         weights: HumanWeights {
             sigma_f: attr(config, "sigma_f")?,
+            sigma_scan: attr(config, "sigma_scan")?,
             k1: attr(config, "k1")?,
             k2: attr(config, "k2")?,
             average_points: attr(config, "average_points")?,
@@ -576,7 +577,7 @@ impl PyCorrectionEngine {
     /// `*_points[k]`. Lines start at the TLS fit of their observations at `poses`. Returns
     /// `(poses, lines (2K, 2) rows (phi, rho), report)`. The GIL is released while solving.
     #[pyo3(signature = (
-        poses, corrections, *, sigma_f, k1, k2, average_points = false,
+        poses, corrections, *, sigma_f, k1, k2, average_points = false, sigma_scan = 0.0,
         even_centroids = false, method = "lm", max_iterations = 100,
         relative_tolerance = 1e-6, absolute_tolerance = 1e-6,
         lambda_initial = 1e-5, robust = None, watchdog_steps = 3
@@ -591,6 +592,7 @@ impl PyCorrectionEngine {
         k1: f64,
         k2: f64,
         average_points: bool,
+        sigma_scan: f64,
         even_centroids: bool,
         method: &str,
         max_iterations: usize,
@@ -632,6 +634,7 @@ impl PyCorrectionEngine {
         drop(poses);
         let weights = HumanWeights {
             sigma_f,
+            sigma_scan,
             k1,
             k2,
             average_points,
