@@ -193,7 +193,8 @@ def read_carmen(
     ):
         flaser_max = inferred[0]
         max_range_source = (
-            f"inferred: {inferred[1]} readings piled at {flaser_max:.6g} m and above "
+            # At most MAX_PLAUSIBLE_RANGE (infer_max_range ignores beyond), so never 309 digits.
+            f"inferred: {inferred[1]} readings piled at {flaser_max:.3f} m and above "
             "(no-returns, dropped); the log states no robot_front_laser_max"
         )
         _log.info("%s: maximum laser range %s", name, max_range_source)
