@@ -84,7 +84,7 @@ impl LikelihoodGrid {
         let (width, height) = (hi[0] - lo[0], hi[1] - lo[1]);
         let fx = ((width + 2.0 * pad) / resolution).ceil() + 1.0;
         let fy = ((height + 2.0 * pad) / resolution).ceil() + 1.0;
-        if !(fx * fy <= MAX_CELLS as f64) {
+        if (fx * fy).is_nan() || fx * fy > MAX_CELLS as f64 {
             return Err(GridTooLarge {
                 width,
                 height,
@@ -227,7 +227,10 @@ mod tests {
     fn a_grid_over_far_apart_points_is_refused_before_allocating() {
         for far in [1e6, 1e9, 1e300, f64::MAX] {
             let err = LikelihoodGrid::new(&[[0.0, 0.0], [far, 1.0]], 0.05, 0.05, 5).unwrap_err();
-            assert!(err.cells > MAX_CELLS as f64 || err.cells.is_nan(), "{far}: {err}");
+            assert!(
+                err.cells > MAX_CELLS as f64 || err.cells.is_nan(),
+                "{far}: {err}"
+            );
             assert!(err.to_string().contains("limit"), "{err}");
         }
         assert!(LikelihoodGrid::new(&[[0.0, 0.0]], 0.0, 0.05, 3).is_err());

@@ -436,9 +436,8 @@ pub fn run(
                 .iter()
                 .map(|key| o.between(key.pose).translation())
                 .collect();
-            let grid =
-                LikelihoodGrid::new(&pts, params.loop_resolution, params.loop_resolution, 5)
-                    .map_err(|e| far_off(&keyframes[origin..=kf], n, "a submap", e))?;
+            let grid = LikelihoodGrid::new(&pts, params.loop_resolution, params.loop_resolution, 5)
+                .map_err(|e| far_off(&keyframes[origin..=kf], n, "a submap", e))?;
             submaps.push(Submap {
                 origin,
                 grid,
