@@ -27,6 +27,7 @@ from hitl_slam.errors import HitlSlamError, InputError, SolverError
 from hitl_slam.extras import require
 
 if TYPE_CHECKING:
+    from hitl_slam.graph import PoseGraph
     from hitl_slam.io.rosbag import BagOptions
     from hitl_slam.map import Map
     from hitl_slam.metrics import Inconsistency
@@ -399,10 +400,13 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         ),
     )
     save_graph(graph, poses, out)
+    start = args.init
+    if args.init == "given" and load.poses_from_odometry:
+        start = "given, chained from the edges (the file has no vertex lines)"
     if not args.quiet:
         print(
             f"{args.graph}: {graph.num_poses} poses, {graph.num_edges} edges "
-            f"({load.format.value}, read in {t_load:.3f} s); start: {args.init}"
+            f"({load.format.value}, read in {t_load:.3f} s); start: {start}"
         )
         print(f"{'iter':>5} {'cost':>16} {'damping':>10} {'|step|':>10} {'ok':>3} {'ms':>9}")
         for rec in report.history:
@@ -432,7 +436,40 @@ def _cmd_solve(args: argparse.Namespace) -> int:
         f"({report.termination}: {report.termination_detail}), {1e3 * report.time_s:.1f} ms; "
         f"wrote {out}"
     )
+    if not report.converged:
+        # Exit 3 must not be silent on stderr (scripts often show only stderr).
+        print(
+            f"hitl-slam: {args.graph}: the solve did not converge ({report.termination}: "
+            f"{_one_line(report.termination_detail)}); the estimate was written to {out} anyway"
+            f"{_worst_edge(graph)}",
+            file=sys.stderr,
+        )
     return 0 if report.converged else 3
+
+
+def _worst_edge(graph: PoseGraph) -> str:
+    """``; the worst edge: ...`` naming the edge whose chi2 is largest at the start, where a
+    damaged vertex or edge usually shows; "" when it cannot be said."""
+    import numpy as np
+
+    from hitl_slam.geometry import compose_rows, invert, wrap
+
+    start = graph.poses
+    i, j = graph.edges[:, 0], graph.edges[:, 1]
+    with np.errstate(all="ignore"):
+        predicted = compose_rows(invert(start[i]), start[j])
+        r = compose_rows(invert(graph.measurements), predicted)
+        r[:, 2] = wrap(r[:, 2])
+        per_edge = np.einsum("ei,eij,ej->e", r, graph.information, r)
+    if per_edge.size == 0 or not np.isfinite(per_edge).any():
+        return ""
+    k = int(np.nanargmax(per_edge))
+    ids = graph.vertex_ids if graph.vertex_ids is not None else np.arange(graph.num_poses)
+    return (
+        f"; the largest error at the start is on edge {ids[i[k]]} -> {ids[j[k]]} (chi2 "
+        f"{per_edge[k]:.3g} of {np.nansum(per_edge):.3g}): check vertices {ids[i[k]]} and "
+        f"{ids[j[k]]} and that edge for a damaged value"
+    )
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:
@@ -624,6 +661,14 @@ def _write_correct_outputs(
 def _cmd_slam(args: argparse.Namespace) -> int:
     from hitl_slam.slam import slam
 
+    for option, value in (
+        ("--keyframe-distance", args.keyframe_distance),
+        ("--match-range", args.match_range),
+        ("--loop-min-score", args.loop_min_score),
+    ):
+        # Checked here so that the message names the option typed, not the library's argument.
+        if not (math.isfinite(value) and value > 0):
+            raise InputError(f"{option} must be a positive number, got {value:g}")
     out = Path(args.output)
     _check_map_output(out, (".hitl",))
     _refuse_overwriting_inputs(_outputs_of(out), [args.log], args.force)
@@ -755,6 +800,13 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
     # Read before the (slower) map, so a bad relations file fails fast.
     relations = None if args.relations is None else read_relations(args.relations)
     the_map = _load_map(args, args.map)
+    if the_map.num_points == 0:
+        # The metric counts disagreeing points; with none it would read a perfect 0.
+        raise InputError(
+            f"{args.map}: the map has no points ({the_map.num_poses} poses, every reading a "
+            "no-return or invalid), so its inconsistency cannot be scored: check the laser's "
+            "range fields (or --max-range) and the file"
+        )
     # Matched before the metric runs, so relations that do not fit the map fail before any output.
     err = (
         None
@@ -1453,8 +1505,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 class _StderrNotices(logging.Handler):
-    """Prints the notices of :mod:`hitl_slam.io.atomic` (stale temporary files removed, or not
-    removable) as ``hitl-slam: ...`` lines on the current stderr."""
+    """Prints, as ``hitl-slam: ...`` lines on the current stderr, every WARNING (and worse) of
+    the ``hitl_slam`` loggers (a reader's skipped lines, covariances it replaced, ...) and the
+    INFO notices of :mod:`hitl_slam.io.atomic` (stale temporary files removed)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.levelno >= logging.WARNING or record.name == "hitl_slam.io.atomic"
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
@@ -1466,16 +1522,21 @@ class _StderrNotices(logging.Handler):
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    notices = logging.getLogger("hitl_slam.io.atomic")
+    # Only the CLI prints: the library's loggers keep their NullHandler (no output on import).
+    package = logging.getLogger("hitl_slam")
+    atomic = logging.getLogger("hitl_slam.io.atomic")
     handler = _StderrNotices(logging.INFO)
-    level = notices.level
-    notices.addHandler(handler)
-    notices.setLevel(logging.INFO)
+    levels = package.level, atomic.level
+    package.addHandler(handler)
+    if package.getEffectiveLevel() > logging.WARNING:
+        package.setLevel(logging.WARNING)
+    atomic.setLevel(logging.INFO)
     try:
         return _run(args)
     finally:
-        notices.removeHandler(handler)
-        notices.setLevel(level)
+        package.removeHandler(handler)
+        package.setLevel(levels[0])
+        atomic.setLevel(levels[1])
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -106,6 +107,17 @@ class SlamResult:
         )
 
 
+def _scan_place(raw: Map, message: str) -> str:
+    """``FILE`` or ``FILE:LINE`` for a core message that starts ``scan K of N`` (1-based), when
+    the map knows its scans' lines."""
+    where = raw.source or raw.name
+    lines = raw.metadata.get("scan_lines")
+    found = re.match(r"scan (\d+) of ", message)
+    if found and isinstance(lines, np.ndarray) and 1 <= int(found[1]) <= lines.size:
+        return f"{where}:{int(lines[int(found[1]) - 1])}"
+    return where
+
+
 def slam(
     source: Map | str | os.PathLike[str],
     *,
@@ -134,23 +146,35 @@ def slam(
         raw = load_map(source)
     n = raw.num_poses
     total = n
+    where = raw.source or raw.name
+    if n > 1 and raw.num_points == 0:
+        raise InputError(
+            f"{where}: none of the {n} scans has a usable point (every reading is a no-return, "
+            "invalid or out of the laser's range); the front end matches scans by their points: "
+            "check the laser's range fields (or --max-range) and the log"
+        )
 
     def report(done: int) -> None:
         if progress is not None:
             progress(done, total)
 
     t0 = time.perf_counter()
-    poses, keyframes, step_info, pairs, z, info, scores, weights, submaps = _core.run_slam(
-        raw.points,
-        raw.offsets,
-        raw.poses,
-        progress=report,
-        keyframe_distance=keyframe_distance,
-        keyframe_angle_deg=keyframe_angle_deg,
-        max_range=max_range,
-        loop_min_score=loop_min_score,
-        dcs=dcs,
-    )
+    try:
+        poses, keyframes, step_info, pairs, z, info, scores, weights, submaps = _core.run_slam(
+            raw.points,
+            raw.offsets,
+            raw.poses,
+            progress=report,
+            keyframe_distance=keyframe_distance,
+            keyframe_angle_deg=keyframe_angle_deg,
+            max_range=max_range,
+            loop_min_score=loop_min_score,
+            dcs=dcs,
+        )
+    except InputError as exc:
+        # The core names scans by their place in the log; the file (and for a CARMEN log the
+        # line of the scan named first) is said here.
+        raise InputError(f"{_scan_place(raw, str(exc))}: {exc}") from None
     elapsed = time.perf_counter() - t0
     loops = LoopClosures(pairs, z, info, scores, weights)
     chain = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1).astype(np.int64)

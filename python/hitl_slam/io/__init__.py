@@ -169,8 +169,19 @@ def save_graph(graph: PoseGraph, poses: ArrayLike | None, path: PathLike) -> Non
 
 def _log_report(report: LoadReport, raw: RawGraph) -> None:
     if report.skipped:
+        syntax = report.format.syntax
+        known = {t.upper(): t for t in (syntax.vertex_tag, syntax.edge_tag, *syntax.extra_tags)}
+
+        def hint(tag: str) -> str:
+            # The reference readers match tags exactly (g2o's factory, TORO's parser), so a
+            # mis-cased tag is skipped as they would, but said plainly.
+            if tag == "FIX":
+                return "; only the first FIX'd vertex is held fixed, these ids are free"
+            meant = known.get(tag.upper())
+            return f"; tags are case-sensitive: {meant}?" if meant and meant != tag else ""
+
         details = ", ".join(
-            f"{_shown(tag)} x{count} (first at line {raw.skipped_first_line[tag]})"
+            f"{_shown(tag)} x{count} (first at line {raw.skipped_first_line[tag]}{hint(tag)})"
             for tag, count in list(report.skipped.items())[:_MAX_TAGS_SHOWN]
         )
         if len(report.skipped) > _MAX_TAGS_SHOWN:

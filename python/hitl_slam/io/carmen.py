@@ -25,6 +25,7 @@ from hitl_slam.io.textfile import (
     STRICT_FLOAT,
     Limit,
     PathLike,
+    beam_spacing_problem,
     input_error,
     limit_error,
     parse_int,
@@ -33,7 +34,13 @@ from hitl_slam.io.textfile import (
 )
 from hitl_slam.map import Map
 
-__all__ = ["DEFAULT_MAX_RANGE", "PoseSource", "infer_max_range", "read_carmen"]
+__all__ = [
+    "DEFAULT_MAX_RANGE",
+    "MAX_PLAUSIBLE_RANGE",
+    "PoseSource",
+    "infer_max_range",
+    "read_carmen",
+]
 
 _log = logging.getLogger(__name__)
 
@@ -51,6 +58,10 @@ _PILE_WIDTH = 0.15  # [m]
 _PILE_BASELINE = 2.0  # [m]
 _PILE_MIN = 10
 _PILE_RATIO = 10.0
+MAX_PLAUSIBLE_RANGE = 1000.0
+"""[m] Readings beyond this are not a 2D laser's (the longest-ranged 2D scanners reach a few
+hundred metres): garbage such as 1e308 that must not be taken for the sensor's no-return value
+when inferring the maximum range. They are never points either (they exceed any maximum)."""
 _FIX_LINE = "fix the line or delete it"
 _FLASER_TAIL = ("x", "y", "theta", "odom_x", "odom_y", "odom_theta", "ipc_timestamp")
 _RANGE_LIMIT = Limit(
@@ -170,6 +181,8 @@ def read_carmen(
     keep = _subsample(poses, min_travel, min_rotation)
 
     kept = np.flatnonzero(keep)
+    _warn_absurd_ranges(name, scans, kept)
+    _warn_backwards(name, scans)
     if max_range is not None:
         flaser_max, max_range_source = max_range, "given (--max-range)"
     elif _MAX_RANGE_PARAM in params:
@@ -180,6 +193,7 @@ def read_carmen(
     ):
         flaser_max = inferred[0]
         max_range_source = (
+            # At most MAX_PLAUSIBLE_RANGE (infer_max_range ignores beyond), so never 309 digits.
             f"inferred: {inferred[1]} readings piled at {flaser_max:.3f} m and above "
             "(no-returns, dropped); the log states no robot_front_laser_max"
         )
@@ -229,8 +243,10 @@ def read_carmen(
 
 def infer_max_range(ranges: NDArray[np.float64]) -> tuple[float, int] | None:
     """``(maximum range, readings at it)`` when the largest readings pile up at one value (the
-    sensor's no-return readings), else None (the largest readings look like real returns)."""
-    r = ranges[np.isfinite(ranges) & (ranges > 0)]
+    sensor's no-return readings), else None (the largest readings look like real returns).
+    Readings that are NaN/inf, not positive, or beyond :data:`MAX_PLAUSIBLE_RANGE` are ignored."""
+    with np.errstate(invalid="ignore"):
+        r = ranges[np.isfinite(ranges) & (ranges > 0) & (ranges <= MAX_PLAUSIBLE_RANGE)]
     if r.size == 0:
         return None
     top = float(r.max())
@@ -243,6 +259,52 @@ def infer_max_range(ranges: NDArray[np.float64]) -> tuple[float, int] | None:
     if count < _PILE_MIN or count < _PILE_RATIO * max(per_window, 1.0) or 3 * count >= r.size:
         return None
     return float(r[pile].min()), count
+
+
+def _warn_absurd_ranges(name: str, scans: _Scans, kept: NDArray[np.intp]) -> None:
+    """A warning for readings that are NaN/inf or beyond :data:`MAX_PLAUSIBLE_RANGE` (never
+    points, and ignored when inferring the maximum range), with the first such line."""
+    if kept.size == 0:
+        return
+    r = np.concatenate([scans.ranges[k] for k in kept])
+    with np.errstate(invalid="ignore"):
+        nonfinite = ~np.isfinite(r)
+        absurd = np.isfinite(r) & (r > MAX_PLAUSIBLE_RANGE)
+    bad = nonfinite | absurd
+    if not bad.any():
+        return
+    owner = np.repeat(kept, [len(scans.ranges[k]) for k in kept])
+    first = scans.lines[int(owner[int(np.argmax(bad))])]
+    _log.warning(
+        "%s:%d: %d readings are NaN/inf and %d beyond %g m (not a 2D laser's; the first is on "
+        "this line); they are not points and are ignored when inferring the maximum range",
+        name,
+        first,
+        int(nonfinite.sum()),
+        int(absurd.sum()),
+        MAX_PLAUSIBLE_RANGE,
+    )
+
+
+def _warn_backwards(name: str, scans: _Scans) -> None:
+    """A warning, with the first line, when the laser timestamps go backwards (equal ones are
+    fine: the Radish corrected logs write 0 everywhere)."""
+    stamps = np.array(scans.stamps, dtype=np.float64)
+    back = np.flatnonzero(np.diff(stamps) < 0)
+    if back.size == 0:
+        return
+    k = int(back[0]) + 1
+    _log.warning(
+        "%s:%d: the timestamp goes backwards (%.6f s after %.6f s on line %d), at %d of %d "
+        "scans; durations and speeds from it are wrong: check how the log was recorded or merged",
+        name,
+        scans.lines[k],
+        stamps[k],
+        stamps[k - 1],
+        scans.lines[k - 1],
+        back.size,
+        len(stamps),
+    )
 
 
 def _stem(name: str) -> str:
@@ -567,6 +629,14 @@ def _parse_robotlaser(
     if header[4] <= 0:
         raise input_error(
             name, number, f"ROBOTLASER1 maximum_range is {tokens[5]}", "it must be positive"
+        )
+    problem = beam_spacing_problem(n, float(header[3]), float(header[2]))
+    if problem:
+        raise input_error(
+            name,
+            number,
+            f"ROBOTLASER1 angular_resolution {tokens[4]}, field_of_view {tokens[3]}: {problem}",
+            "fix the header fields (angles in radians) or delete the line",
         )
     scans.lines.append(number)
     scans.ranges.append(ranges)

@@ -131,7 +131,7 @@ def read_covars(path: PathLike, config: Config = DEFAULT) -> Map:
     if not numbers:
         raise input_error(name, None, "no observation lines after the name and timestamp", todo)
     rows = _parse_rows(name, lines, numbers)
-    return _build(name, rows, map_name, stamp, config)
+    return _build(name, rows, map_name, stamp, config, np.asarray(numbers) + 1)
 
 
 def _stem(name: str) -> str:
@@ -198,7 +198,12 @@ def _fix() -> str:
 
 
 def _build(
-    name: str, rows: NDArray[np.float64], map_name: str, stamp: float, config: Config
+    name: str,
+    rows: NDArray[np.float64],
+    map_name: str,
+    stamp: float,
+    config: Config,
+    line_numbers: NDArray[np.int64] | None = None,
 ) -> Map:
     pose_cols = rows[:, :3]
     starts = np.flatnonzero(
@@ -256,6 +261,7 @@ def _build(
         }
     )
     if usable is not None:
+        _warn_bad_covariances(name, covariances, known, starts, line_numbers)
         fallback = int(np.count_nonzero(result.information_source != 0))
         if fallback:
             _log.info(
@@ -265,6 +271,40 @@ def _build(
                 len(result.information_source),
             )
     return result
+
+
+def _warn_bad_covariances(
+    name: str,
+    covariances: NDArray[np.float64],
+    known: NDArray[np.bool_],
+    starts: NDArray[np.intp],
+    line_numbers: NDArray[np.int64] | None,
+) -> None:
+    """A warning (with the first such pose's line) for given covariances that are not
+    symmetric positive definite: their edges silently fall back to the motion model otherwise,
+    and the file is probably damaged or written in another convention."""
+    symmetric = np.all(
+        np.abs(covariances - covariances.transpose(0, 2, 1))
+        <= 1e-9 * np.maximum(1.0, np.abs(covariances).max(axis=(1, 2), initial=0.0))[:, None, None],
+        axis=(1, 2),
+    )
+    sym = 0.5 * (covariances + covariances.transpose(0, 2, 1))
+    positive = np.linalg.eigvalsh(sym).min(axis=1) > 0
+    bad = np.flatnonzero(known & ~(symmetric & positive))
+    if bad.size == 0:
+        return
+    first = int(bad[0])
+    where = f"{name}:{int(line_numbers[starts[first]])}" if line_numbers is not None else name
+    _log.warning(
+        "%s: the covariance of %d of %d poses is not symmetric positive definite (first: pose "
+        "%d, C_xx = %.6g); the edges next to them use the motion model instead: check how the "
+        "file was written (all zeros means unknown)",
+        where,
+        bad.size,
+        len(covariances),
+        first + 1,
+        float(covariances[first, 0, 0]),
+    )
 
 
 def write_covars(map: Map, poses: ArrayLike, path: PathLike) -> None:

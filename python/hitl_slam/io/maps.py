@@ -6,7 +6,10 @@
 
 from __future__ import annotations
 
+import logging
 import os
+
+import numpy as np
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
@@ -20,6 +23,7 @@ MAP_EXTENSIONS = (".covars", ".clf", ".log", *BAG_EXTENSIONS, ".hitl")
 """What :func:`load_map` reads; CARMEN logs may also end in ``.gz`` or ``.bz2``, and a ROS 2 bag
 may be its directory."""
 
+_log = logging.getLogger(__name__)
 _COMPRESSED = (".gz", ".bz2")
 _POSE_GRAPHS = (".g2o", ".graph")
 
@@ -60,7 +64,9 @@ def load_map(
     if not compression and is_rosbag(name):
         from hitl_slam.io.rosbag import read_rosbag
 
-        return read_rosbag(name, bag or DEFAULT_BAG_OPTIONS, max_range=max_range, config=config)
+        return _warn_if_empty(
+            read_rosbag(name, bag or DEFAULT_BAG_OPTIONS, max_range=max_range, config=config)
+        )
     if bag is not None and bag != DEFAULT_BAG_OPTIONS:
         raise InputError(
             f"{name}: topic and frame options (--scan-topic, --odom-topic, --odom-frame, "
@@ -69,7 +75,7 @@ def load_map(
     if extension in (".clf", ".log"):
         from hitl_slam.io.carmen import read_carmen
 
-        return read_carmen(name, config=config, max_range=max_range)
+        return _warn_if_empty(read_carmen(name, config=config, max_range=max_range))
     if max_range is not None:
         raise InputError(
             f"{name}: --max-range applies to laser logs (CARMEN .clf/.log, ROS bags); this "
@@ -96,3 +102,27 @@ def load_map(
         f"{name}: cannot read a map from {shown!r}; supported: {supported} "
         "(CARMEN logs also as .gz or .bz2; a ROS 2 bag also as its directory)"
     )
+
+
+def _warn_if_empty(laser_map: Map) -> Map:
+    """A laser log whose scans have no usable point is read (its poses may still be wanted) but
+    said loudly: a map without points draws nothing, matches nothing and scores nothing."""
+    n = laser_map.num_poses
+    empty = int(np.count_nonzero(np.diff(laser_map.offsets) == 0))
+    where = laser_map.source or laser_map.name
+    if laser_map.num_points == 0:
+        _log.warning(
+            "%s: none of the %d scans has a usable point (every reading is a no-return, NaN, "
+            "or outside the laser's range); check the laser's range fields or --max-range",
+            where,
+            n,
+        )
+    elif 2 * empty > n:
+        _log.warning(
+            "%s: %d of %d scans have no usable point (every reading a no-return, NaN, or outside "
+            "the laser's range); check the laser's range fields or --max-range",
+            where,
+            empty,
+            n,
+        )
+    return laser_map

@@ -22,7 +22,14 @@ from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
 from hitl_slam.extras import require
 from hitl_slam.geometry import compose_rows, invert
-from hitl_slam.io.textfile import MAX_ANGLE, MAX_COORDINATE, PathLike, check_regular_file, sci
+from hitl_slam.io.textfile import (
+    MAX_ANGLE,
+    MAX_COORDINATE,
+    PathLike,
+    beam_spacing_problem,
+    check_regular_file,
+    sci,
+)
 from hitl_slam.map import Map
 
 __all__ = ["BAG_EXTENSIONS", "DEFAULT_BAG_OPTIONS", "BagOptions", "is_rosbag", "read_rosbag"]
@@ -719,7 +726,15 @@ def _build_map(
         result = dataclasses.replace(result, poses=poses)
     dropped = len(scans) - len(kept)
     if dropped:
-        _log.info("%s: %d scans outside the odometry's time span dropped", name, dropped)
+        _log.warning(
+            "%s: %d of %d scans of %s dropped: before the first or after the last odometry (%s) "
+            "message, where it cannot place them",
+            name,
+            dropped,
+            len(scans),
+            contents.scan_topic,
+            odometry_source,
+        )
     result.metadata.update(
         {
             "format": "rosbag",
@@ -886,6 +901,31 @@ def _points(
             f"{float(fields[k, 0])!r}, angle_increment {float(fields[k, 1])!r}, range_min "
             f"{float(fields[k, 2])!r} over {beams[k]} beams: a NaN/inf or angles beyond "
             f"{sci(MAX_ANGLE)} rad; the message is damaged: re-record the bag or drop it"
+        )
+    for k in np.unique(np.stack([beams, fields[:, 1]], axis=1), axis=0, return_index=True)[1]:
+        problem = beam_spacing_problem(int(beams[k]), float(fields[k, 1]))
+        if problem:
+            raise InputError(
+                f"{name}: {topic}: the scan at {_seconds(scans[k].stamp):.9f} s has "
+                f"angle_increment {float(fields[k, 1])!r}: "
+                f"{problem}; the message is damaged: re-record the bag or drop it"
+            )
+    with np.errstate(invalid="ignore"):
+        inverted = fields[:, 2] > limit
+    if inverted.any():
+        k = int(np.argmax(inverted))
+        _log.warning(
+            "%s: %s: %d of %d scans have range_min above range_max%s (first at %.9f s: %g > "
+            "%g m); none of their readings can be a point: check the laser driver's range "
+            "settings",
+            name,
+            topic,
+            int(inverted.sum()),
+            len(scans),
+            "" if max_range is None else " (or --max-range)",
+            _seconds(scans[k].stamp),
+            float(fields[k, 2]),
+            float(limit[k]),
         )
     with np.errstate(invalid="ignore"):
         unusable = ~(limit <= MAX_COORDINATE)  # NaN, inf or absurd: no usable maximum

@@ -25,14 +25,17 @@ __all__ = [
     "ANGLE_LIMIT",
     "COMPRESSED_SUFFIXES",
     "COORDINATE_LIMIT",
+    "FULL_TURN_SLACK",
     "MAX_ANGLE",
     "MAX_COORDINATE",
     "MAX_INFORMATION",
+    "MIN_BEAM_SPACING",
     "STRICT_FLOAT",
     "Limit",
     "PathLike",
     "RawGraph",
     "Syntax",
+    "beam_spacing_problem",
     "check_regular_file",
     "first_beyond",
     "format_graph",
@@ -42,6 +45,7 @@ __all__ = [
     "parse_tagged_lines",
     "read_lines",
     "sci",
+    "shorten",
 ]
 
 PathLike = str | os.PathLike[str]
@@ -94,6 +98,44 @@ class Limit:
     todo: str
 
 
+MIN_BEAM_SPACING = 1e-5
+"""Smallest angle between neighbouring laser beams, in radians (0.0006 degrees, 630,000 beams a
+turn; real 2D lasers space theirs 0.01 degrees or more). A spacing of 0 or 1e-30 puts every beam
+on one ray: the field is damaged, not a laser."""
+
+FULL_TURN_SLACK = 0.05
+"""How far (radians, about 3 degrees) a scan's span may exceed a full turn: 360-degree drivers
+write ``n * increment`` or ``angle_max - angle_min`` a little over 2 pi (rounding, an overlapping
+last beam), which is harmless; far beyond it the beam angles mean nothing."""
+
+
+def beam_spacing_problem(beams: int, spacing: float, field_of_view: float | None = None) -> str:
+    """What is wrong with ``beams`` beams ``spacing`` rad apart (and a declared field of view),
+    or "" when they make sense: a spacing finite and at least :data:`MIN_BEAM_SPACING` in
+    magnitude (negative: beams counted clockwise, as upside-down mounts do), and a span of at
+    most a full turn plus :data:`FULL_TURN_SLACK`."""
+    turn = 2.0 * math.pi + FULL_TURN_SLACK
+    if not math.isfinite(spacing) or (beams > 1 and abs(spacing) < MIN_BEAM_SPACING):
+        return (
+            f"the beam spacing is {spacing:.6g} rad; it must be a finite number of at least "
+            f"{MIN_BEAM_SPACING:g} rad (a 1-degree laser: 0.0174533)"
+        )
+    span = max(beams - 1, 0) * abs(spacing)
+    if span > turn:
+        return (
+            f"{beams} beams {spacing:.6g} rad apart span {span:.6g} rad, more than a full turn "
+            f"(2 pi = 6.28319 rad); the beam spacing is wrong (a 1-degree laser: 0.0174533)"
+        )
+    if field_of_view is not None and not (
+        math.isfinite(field_of_view) and abs(field_of_view) <= turn
+    ):
+        return (
+            f"the field of view is {field_of_view:.6g} rad; it must be at most a full turn "
+            "(2 pi = 6.28319 rad)"
+        )
+    return ""
+
+
 def sci(value: float) -> str:
     """``1e9``, not Python's ``1e+09``: how limits are written in messages."""
     mantissa, exponent = f"{value:.0e}".split("e")  # 1e9, not Python's 1e+09
@@ -126,10 +168,26 @@ def _information_limit(syntax: Syntax) -> Limit:
     )
 
 
+_MAX_ECHOED = 80
+"""Longest run of non-blank input a message repeats; longer ones are cut (a 10 MB token in a
+file must not become a 10 MB error message)."""
+
+
+def shorten(text: str) -> str:
+    """``text`` with every run of more than :data:`_MAX_ECHOED` non-blank characters cut to its
+    start, an ellipsis and its length."""
+    return re.sub(
+        rf"\S{{{_MAX_ECHOED + 1},}}",
+        lambda m: f"{m[0][: _MAX_ECHOED - 20]}... ({len(m[0])} characters)",
+        text,
+    )
+
+
 def input_error(path: str, line: int | None, what: str, todo: str) -> InputError:
-    """The one place messages are shaped: ``{path}:{line}: {what is wrong}; {what to do}``."""
+    """The one place messages are shaped: ``{path}:{line}: {what is wrong}; {what to do}``.
+    Input quoted in ``what`` is shortened (:func:`shorten`); the path is not."""
     where = path if line is None else f"{path}:{line}"
-    return InputError(f"{where}: {what}; {todo}")
+    return InputError(f"{where}: {shorten(what)}; {shorten(todo)}")
 
 
 def limit_error(path: str, line: int | None, what: str, limit: Limit) -> InputError:

@@ -38,7 +38,7 @@ fn bound(grid: &LikelihoodGrid, r: &Rotation, dx: i64, dy: i64, level: usize) ->
     let sum: f64 = r
         .cells
         .iter()
-        .map(|&(x, y)| grid.at(level, x + dx, y + dy) as f64)
+        .map(|&(x, y)| grid.at(level, x.saturating_add(dx), y.saturating_add(dy)) as f64)
         .sum();
     sum / r.cells.len().max(1) as f64
 }
@@ -176,7 +176,7 @@ mod tests {
     #[test]
     fn finds_the_true_pose_from_a_guess_off_by_decimetres_and_degrees() {
         let map = room();
-        let grid = LikelihoodGrid::new(&map, 0.05, 0.05, 4);
+        let grid = LikelihoodGrid::new(&map, 0.05, 0.05, 4).unwrap();
         let truth: [f64; 3] = [0.37, -0.21, 0.12];
         // The scan: the map seen from `truth`, in the robot frame.
         let (s, c) = truth[2].sin_cos();

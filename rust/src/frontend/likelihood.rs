@@ -9,6 +9,33 @@
 /// A point of the plane.
 pub type Point = [f64; 2];
 
+/// The most cells a grid may have. A grid keeps its fine level and up to 5 coarser ones (plus a
+/// scratch copy while building them) at 4 bytes a cell, so 2^25 cells is at most about 1 GB;
+/// the front end's maps (the last keyframes within the match range, or one submap) need a few
+/// million cells, so a grid this large means a pose far from the others (issue: fuzzing #1).
+pub const MAX_CELLS: usize = 1 << 25;
+
+/// Why a grid was refused: its points span `width` x `height` [m], `cells` cells at
+/// `resolution` [m] (more than [`MAX_CELLS`]). The front end adds which scans did it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridTooLarge {
+    pub width: f64,
+    pub height: f64,
+    pub resolution: f64,
+    pub cells: f64,
+}
+
+impl std::fmt::Display for GridTooLarge {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "its points would span {:.3e} x {:.3e} m, a grid of {:.3e} cells at {} m (the limit \
+             is {MAX_CELLS} cells)",
+            self.width, self.height, self.cells, self.resolution
+        )
+    }
+}
+
 #[derive(Clone, Debug)]
 pub struct LikelihoodGrid {
     origin: Point,
@@ -21,8 +48,15 @@ pub struct LikelihoodGrid {
 
 impl LikelihoodGrid {
     /// The field of `points` at `resolution` [m] with spread `sigma` [m], and `depth` coarser
-    /// levels. Empty point sets give an empty grid (every score 0).
-    pub fn new(points: &[Point], resolution: f64, sigma: f64, depth: usize) -> Self {
+    /// levels. Empty point sets give an empty grid (every score 0). A grid of more than
+    /// [`MAX_CELLS`] cells (points spread too far, or a resolution that is not a positive number)
+    /// is refused before anything is allocated.
+    pub fn new(
+        points: &[Point],
+        resolution: f64,
+        sigma: f64,
+        depth: usize,
+    ) -> Result<Self, GridTooLarge> {
         let reach = 3.0 * sigma;
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
         for p in points
@@ -33,20 +67,32 @@ impl LikelihoodGrid {
             hi = [hi[0].max(p[0]), hi[1].max(p[1])];
         }
         if lo[0] > hi[0] || lo[0].is_nan() {
-            return Self {
+            return Ok(Self {
                 origin: [0.0; 2],
                 resolution,
                 nx: 0,
                 ny: 0,
                 levels: vec![Vec::new(); depth + 1],
-            };
+            });
         }
         // Padding of 2^depth cells: a coarse block that starts left of (or below) the grid then
         // covers only empty cells, so reading 0 there is exact.
-        let pad = reach + resolution * (1.0 + (1usize << depth) as f64);
+        let pad = reach + resolution * (1.0 + 2f64.powi(depth.min(62) as i32));
         let origin = [lo[0] - pad, lo[1] - pad];
-        let nx = ((hi[0] - lo[0] + 2.0 * pad) / resolution).ceil() as usize + 1;
-        let ny = ((hi[1] - lo[1] + 2.0 * pad) / resolution).ceil() as usize + 1;
+        // Sized in floating point first: an extent too large for usize (or inf - inf = NaN)
+        // must fail the check, not wrap or saturate into an allocation.
+        let (width, height) = (hi[0] - lo[0], hi[1] - lo[1]);
+        let fx = ((width + 2.0 * pad) / resolution).ceil() + 1.0;
+        let fy = ((height + 2.0 * pad) / resolution).ceil() + 1.0;
+        if (fx * fy).is_nan() || fx * fy > MAX_CELLS as f64 {
+            return Err(GridTooLarge {
+                width,
+                height,
+                resolution,
+                cells: fx * fy,
+            });
+        }
+        let (nx, ny) = (fx as usize, fy as usize);
         let mut fine = vec![0f32; nx * ny];
         let r = (reach / resolution).ceil() as i64;
         let inv = 1.0 / (2.0 * sigma * sigma);
@@ -103,13 +149,13 @@ impl LikelihoodGrid {
             }
             levels.push(out);
         }
-        Self {
+        Ok(Self {
             origin,
             resolution,
             nx,
             ny,
             levels,
-        }
+        })
     }
 
     pub fn resolution(&self) -> f64 {
@@ -157,7 +203,7 @@ mod tests {
                 [t.cos() * 3.0 + 0.1 * t, t.sin() * 2.0]
             })
             .collect();
-        let g = LikelihoodGrid::new(&pts, 0.05, 0.05, 4);
+        let g = LikelihoodGrid::new(&pts, 0.05, 0.05, 4).unwrap();
         for l in 1..=4 {
             let w = 1i64 << l;
             for iy in (-3..g.ny as i64).step_by(7) {
@@ -175,5 +221,19 @@ mod tests {
         // On a point the field is near 1.
         assert!(g.value(pts[10]) > 0.6);
         assert_eq!(g.value([100.0, 100.0]), 0.0);
+    }
+
+    #[test]
+    fn a_grid_over_far_apart_points_is_refused_before_allocating() {
+        for far in [1e6, 1e9, 1e300, f64::MAX] {
+            let err = LikelihoodGrid::new(&[[0.0, 0.0], [far, 1.0]], 0.05, 0.05, 5).unwrap_err();
+            assert!(
+                err.cells > MAX_CELLS as f64 || err.cells.is_nan(),
+                "{far}: {err}"
+            );
+            assert!(err.to_string().contains("limit"), "{err}");
+        }
+        assert!(LikelihoodGrid::new(&[[0.0, 0.0]], 0.0, 0.05, 3).is_err());
+        assert!(LikelihoodGrid::new(&[[0.0, 0.0], [100.0, 100.0]], 0.05, 0.05, 5).is_ok());
     }
 }

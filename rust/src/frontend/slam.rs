@@ -21,8 +21,8 @@ use nalgebra::Matrix3;
 
 use super::correlative::{search, Window};
 use super::icp::{IcpParams, Reference};
-use super::likelihood::{LikelihoodGrid, Point};
-use crate::error::{input, Result};
+use super::likelihood::{GridTooLarge, LikelihoodGrid, Point};
+use crate::error::{input, HitlError, Result};
 use crate::factors::FactorClass;
 use crate::graph::FactorGraph;
 use crate::se2::Pose2;
@@ -419,7 +419,8 @@ pub fn run(
         for key in &keyframes[first..] {
             pts.extend(scans[key.scan].iter().map(|p| key.pose.transform_point(*p)));
         }
-        let grid = LikelihoodGrid::new(&pts, params.local_resolution, params.local_resolution, 3);
+        let grid = LikelihoodGrid::new(&pts, params.local_resolution, params.local_resolution, 3)
+            .map_err(|e| far_off(&keyframes[first..], n, "the local map", e))?;
         local = Some((grid, Reference::new(&pts, icp.normal_radius)));
 
         // A submap is finished every `submap_keyframes` keyframes.
@@ -435,9 +436,11 @@ pub fn run(
                 .iter()
                 .map(|key| o.between(key.pose).translation())
                 .collect();
+            let grid = LikelihoodGrid::new(&pts, params.loop_resolution, params.loop_resolution, 5)
+                .map_err(|e| far_off(&keyframes[origin..=kf], n, "a submap", e))?;
             submaps.push(Submap {
                 origin,
-                grid: LikelihoodGrid::new(&pts, params.loop_resolution, params.loop_resolution, 5),
+                grid,
                 points: pts,
                 reference: None,
                 path,
@@ -462,6 +465,31 @@ pub fn run(
         loops,
         submaps: submaps.len(),
     })
+}
+
+/// The error for a grid over `keys` (the last being the newest keyframe) that would be too
+/// large: the newest keyframe's jump from the one before it is what grew the grid past the
+/// limit (the grid before it was built fine), so both scans are named, counted from 1 as in the
+/// log.
+fn far_off(keys: &[Keyframe], scans: usize, what: &str, e: GridTooLarge) -> HitlError {
+    let advice = "a pose far from the others (a damaged line or an odometry jump in the log?): \
+                  check the log at those scans, or split it there";
+    let last = keys.last();
+    let before = keys.len().checked_sub(2).and_then(|k| keys.get(k));
+    let (Some(last), Some(before)) = (last, before) else {
+        return HitlError::Input(format!(
+            "{what} of the front end is too large to build: {e}; {advice}"
+        ));
+    };
+    let jump = before.pose.between(last.pose).translation_len();
+    HitlError::Input(format!(
+        "scan {} of {scans} is at ({:.6e}, {:.6e}) m, {jump:.3e} m from scan {} (the keyframe \
+         before it); {what} of the front end over them is too large to build: {e}; {advice}",
+        last.scan + 1,
+        last.pose.x,
+        last.pose.y,
+        before.scan + 1,
+    ))
 }
 
 /// Optimizes the keyframe graph, DCS on the loop closures; updates the keyframes' poses and the
@@ -502,4 +530,29 @@ fn optimize_keyframes(
         l.weight = *w;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn wall() -> Vec<Point> {
+        (0..40).map(|k| [2.0, -1.0 + 0.05 * k as f64]).collect()
+    }
+
+    #[test]
+    fn a_pose_far_from_the_others_is_an_input_error_naming_it_not_an_allocation() {
+        for far in [1e6, 1e9, 1e300] {
+            let scans = vec![wall(); 4];
+            let odometry = [0.0, 0.1, far, 0.3].map(|x| Pose2::new(x, 0.0, 0.0));
+            let err = run(&scans, &odometry, &SlamParams::default(), &mut |_| {}).unwrap_err();
+            let HitlError::Input(msg) = &err else {
+                panic!("{far}: {err:?}");
+            };
+            // Scan 2 rides on scan 1's keyframe (0.1 m); scan 3 is the far one.
+            assert!(msg.contains("scan 3 of 4"), "{msg}");
+            assert!(msg.contains("from scan 1 "), "{msg}");
+            assert!(msg.contains("split it"), "{msg}");
+        }
+    }
 }
