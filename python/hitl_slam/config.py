@@ -67,8 +67,9 @@ class Config:
     sigma_f: float = 0.03  # [m]
     # [m] one scan's error against a wall that all its points share (the wall's bends and
     # roughness, the sensor's calibration): a pose's n points on a drawn wall place it to
-    # sqrt(sigma_f^2 / n + sigma_scan^2), not sigma_f / sqrt(n) (docs/ALGORITHM.md §I.20);
-    # 0: every point independent, as the paper's R_a / R_b
+    # sqrt(sigma_f^2 / n + sigma_scan^2), not sigma_f / sqrt(n) (docs/ALGORITHM.md §I.20:
+    # about 0.01 m on the real logs; measured and off by default). 0: every point independent,
+    # as the paper's R_a / R_b
     sigma_scan: float = 0.0
     k1: float = 1e6  # [1/m^2]
     k2: float = 1e7  # [1/rad^2]
