@@ -122,6 +122,10 @@ class Config:
     # the new one, would yield, §I.8) is read again with that segment on the other line; the
     # first reading that contradicts none is kept, with a note (§I.18)
     near_tie_reading: bool = True
+    # a correction is one statement: where its relation yields (§I.8), its point-to-line blocks
+    # yield with it, so that a statement that holds only in part does not bend the passes it
+    # selected straight (docs/ALGORITHM.md §I.21)
+    points_yield: bool = True
     # consistency guard: a correction after which the map's own measurements (its relative-pose
     # factors) score a chi2 above this quantile of chi2 with 3 x edges dof is tried again with
     # the passes nearest the drawings, then refused with the figures (0 = off)

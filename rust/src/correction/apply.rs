@@ -79,6 +79,9 @@ pub struct ApplyParams {
     /// Whether a reading that contradicts earlier corrections is tried again on the next line
     /// of a near-tie snap (`Config.near_tie_reading`, docs/ALGORITHM.md §I.18).
     pub near_tie_reading: bool,
+    /// Whether a correction whose relation yields has its point-to-line blocks yield with it
+    /// (`Config.points_yield`, docs/ALGORITHM.md §I.21).
+    pub points_yield: bool,
 }
 
 /// How far around its passes a colocation's two readings are compared (§I.13): each pass
@@ -361,6 +364,44 @@ impl CorrectionEngine {
         })
     }
 
+    /// A correction is one statement: where its relation yields (weight `w` below
+    /// [`YIELDED`] in `solved`), the claim that its observations lie on one line each yields
+    /// with it. The kept solution is solved once more from where it is, every correction's
+    /// point-to-line information multiplied by its relation's weight; the decisions (which
+    /// reading, which statements yield) stay those made on `solved` (docs/ALGORITHM.md §I.21).
+    fn points_yield(
+        &mut self,
+        scans: &Scans,
+        h: &Interpretation,
+        solved: Solved,
+        active: &[Active],
+        p: &ApplyParams,
+    ) -> Result<Solved> {
+        if solved.relation_weights.iter().all(|w| *w >= YIELDED) {
+            return Ok(solved);
+        }
+        let mut specs = Vec::with_capacity(active.len() + 1);
+        for c in active {
+            specs.push(spec(scans, c.mode, &c.s_a, &c.s_b)?);
+        }
+        specs.push(spec(scans, h.mode, &h.s_a, &h.s_b)?);
+        // Row scales: the square root of each relation's weight (a floor keeps the lines
+        // defined; at 1e-3 of their rows' weight they no longer move a pose).
+        let scales: Vec<f64> = solved
+            .relation_weights
+            .iter()
+            .map(|w| w.clamp(1e-6, 1.0).sqrt())
+            .collect();
+        let (values, report) =
+            self.solve_scaled(solved.poses.clone(), &specs, &p.weights, &p.solver, &scales)?;
+        Ok(Solved {
+            poses: values.poses,
+            lines: values.lines,
+            report,
+            ..solved
+        })
+    }
+
     /// Where the new correction contradicts earlier ones (some earlier relation yields in
     /// `solved`, which started from the new correction's explicit step, so the new statement
     /// held from the start), the same set is solved again from the map as shown, where the
@@ -479,6 +520,9 @@ impl CorrectionEngine {
             contradicted_note(&solved.relation_weights, &before_weights, solved.contested)
         {
             h.notes.push(note);
+        }
+        if p.points_yield {
+            solved = self.points_yield(scans, &h, solved, active, p)?;
         }
         Ok(Applied {
             interpretation: h,

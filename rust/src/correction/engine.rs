@@ -132,6 +132,21 @@ impl CorrectionSpec {
         w: &HumanWeights,
         poses: Option<&[Pose2]>,
     ) -> Result<Vec<Box<dyn Factor>>> {
+        self.factors_scaled(la, w, poses, 1.0)
+    }
+
+    /// [`Self::factors`] with every point-to-line row scaled by `point_scale` (its information
+    /// by `point_scale^2`); the relation as it is (docs/ALGORITHM.md §I.21).
+    pub fn factors_scaled(
+        &self,
+        la: usize,
+        w: &HumanWeights,
+        poses: Option<&[Pose2]>,
+        point_scale: f64,
+    ) -> Result<Vec<Box<dyn Factor>>> {
+        if !(point_scale.is_finite() && point_scale > 0.0) {
+            return input(format!("a point scale must be > 0, got {point_scale}"));
+        }
         let lb = la + 1;
         let count = |set: &[PoseObservations]| set.iter().map(|(_, p)| p.len()).sum::<usize>();
         let (na, nb) = (count(&self.a), count(&self.b));
@@ -170,7 +185,7 @@ impl CorrectionSpec {
                     *i,
                     line,
                     pts.clone(),
-                    w.point_weight(total, pts.len()),
+                    point_scale * w.point_weight(total, pts.len()),
                 )?));
             }
         }
@@ -316,6 +331,19 @@ impl CorrectionEngine {
         weights: &HumanWeights,
         params: &SolverParams,
     ) -> Result<(Values, SolveReport)> {
+        self.solve_scaled(poses, corrections, weights, params, &[])
+    }
+
+    /// [`Self::solve`] with correction `k`'s point-to-line rows scaled by `point_scales[k]`
+    /// (1 where the slice is shorter; [`CorrectionSpec::factors_scaled`]).
+    pub fn solve_scaled(
+        &mut self,
+        poses: Vec<Pose2>,
+        corrections: &[CorrectionSpec],
+        weights: &HumanWeights,
+        params: &SolverParams,
+        point_scales: &[f64],
+    ) -> Result<(Values, SolveReport)> {
         weights.validate()?;
         let mut values = Values::from_poses(poses);
         self.check_poses(&values)?;
@@ -326,7 +354,8 @@ impl CorrectionEngine {
         for (k, c) in corrections.iter().enumerate() {
             c.validate(n)
                 .map_err(|e| HitlError::Input(format!("correction {k}: {e}")))?;
-            human.extend(c.factors(2 * k, weights, Some(&values.poses))?);
+            let scale = point_scales.get(k).copied().unwrap_or(1.0);
+            human.extend(c.factors_scaled(2 * k, weights, Some(&values.poses), scale)?);
             lines.push(fit_line_at(&values.poses, &c.a)?);
             lines.push(fit_line_at(&values.poses, &c.b)?);
         }

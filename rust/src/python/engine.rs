@@ -190,6 +190,7 @@ fn apply_params(
         },
         length_rule: attr(config, "colocation_length_rule")?,
         near_tie_reading: attr(config, "near_tie_reading")?,
+        points_yield: attr(config, "points_yield")?,
     })
 }
 
