@@ -85,7 +85,9 @@ def test_a_false_statement_yields_to_the_true_ones_that_contradict_it(seed: int)
     # The two true statements hold: the second lap lies on the first.
     after = _lap_error(w, shown)
     assert after[0] < 0.05, after
-    assert after[1] < 0.3, after
+    # 0.08-0.23 degrees with the false statement's point blocks held (they are true of each
+    # lap's own wall), 0.08-0.30 with them yielding with its relation (§I.21).
+    assert after[1] < 0.35, after
 
     # Every relation hard and the odometry's kernel fixed (the paper's model, without the second
     # solve across steps the scans could not check, docs/ALGORITHM.md §I.12): the same three
@@ -165,3 +167,45 @@ def test_a_false_statement_after_true_ones_is_the_one_that_yields(seed: int) -> 
     assert "this correction holds only in part" in notes, notes
     assert "yield:" not in notes, notes
     assert np.max(np.hypot(*(result.poses[:, :2] - shown[:, :2]).T)) < 0.1
+
+
+def _moved_by_a_yielded_statement(seed: int, points_yield: bool) -> tuple[float, float]:
+    """The scene of the test above with ``Config.points_yield`` as given: how far [m, deg] the
+    false statement, which yields, moves the map the true ones made."""
+    config = dataclasses.replace(UNGUARDED, points_yield=points_yield)
+    rng = np.random.default_rng(950 + seed)
+    w = copies_world([(0.0, 0.0, 0.0), (0.0, 0.4, math.radians(2.0))], seed)
+    a0, a1 = w.copy_of(WALL_A, 0), w.copy_of(WALL_A, 1)
+    b0, b1 = w.copy_of(WALL_B, 0), w.copy_of(WALL_B, 1)
+
+    def drawing(c0: np.ndarray, c1: np.ndarray, others: tuple[np.ndarray, ...]) -> DrawnCorrection:
+        return DrawnCorrection.make(
+            careful_drawing(c0, rng, offset=(0.0, 0.05), others=others),
+            careful_drawing(c1, rng, offset=(0.0, 0.05), others=others),
+            Mode.COLLINEAR,
+        )
+
+    true_a = _interpret(w, drawing(a0, a1, (b0, b1)), config)
+    true_b = apply_correction(w.map, w.map.poses, drawing(b0, b1, (a0, a1)), (true_a,), config)
+    shown = true_b.poses
+    false = drawing(np.array(WALL_A), np.array(WALL_B), ())
+    result = apply_correction(w.map, shown, false, (true_a, true_b.interpretation), config)
+    assert "this correction holds only in part (weight 0.00)" in result.interpretation.notes[-1]
+    turn = np.remainder(result.poses[:, 2] - shown[:, 2] + math.pi, 2 * math.pi) - math.pi
+    return (
+        float(np.max(np.hypot(*(result.poses[:, :2] - shown[:, :2]).T))),
+        math.degrees(float(np.max(np.abs(turn)))),
+    )
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_statement_that_yields_leaves_the_map_as_it_was(seed: int) -> None:
+    # A relation at weight 0 says nothing; its point-to-line blocks used to keep saying "these
+    # observations lie on one line each" and bent the passes they selected straight (Belgioioso
+    # in the full evaluation: a yielded colocation took 2.66 -> 4.51 degrees). They now yield
+    # with it (docs/ALGORITHM.md §I.21).
+    held = _moved_by_a_yielded_statement(seed, points_yield=False)
+    assert held[0] > 0.01, held  # what the blocks did on their own
+    moved = _moved_by_a_yielded_statement(seed, points_yield=True)
+    assert moved[0] < 0.005, moved
+    assert moved[1] < 0.01, moved

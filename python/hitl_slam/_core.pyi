@@ -242,6 +242,7 @@ class CorrectionEngine:
         k2: float,
         average_points: bool = False,
         sigma_scan: float = 0.0,
+        points_yield: bool = False,
         even_centroids: bool = False,
         method: str = "lm",
         max_iterations: int = 100,

@@ -225,6 +225,7 @@ def solve_all(
             k2=config.k2,
             average_points=config.average_points,
             sigma_scan=config.sigma_scan,
+            points_yield=config.points_yield,
             even_centroids=config.colocation_even_centroids,
             max_iterations=config.max_iterations,
             relative_tolerance=config.relative_tolerance,

@@ -7,7 +7,7 @@
 use std::time::Instant;
 
 use super::backpropagate;
-use super::engine::{fit_line_at, CorrectionEngine, CorrectionSpec, HumanWeights};
+use super::engine::{fit_line_at, CorrectionEngine, CorrectionSpec, HumanWeights, YIELDED};
 use super::explicit::explicit_transform;
 use super::interpretation::{interpret, span, Drawing, InterpretParams, Interpretation};
 use super::scans::{Row, Scans};
@@ -184,10 +184,6 @@ pub struct Solved {
     pub contested: bool,
 }
 
-/// Below this robust weight a relation counts as yielding to contradicting evidence (as
-/// `hitl_slam.solve.downweighted`).
-const YIELDED: f64 = 0.5;
-
 /// The earlier relations (indices into `weights`, the active corrections' robust weights in
 /// order, then the new one's) that yield now but held on the map as shown (`before`, empty when
 /// every one held): the ones the new correction makes yield.
@@ -345,15 +341,7 @@ impl CorrectionEngine {
         }
         specs.push(spec(scans, h.mode, &h.s_a, &h.s_b)?);
         let (values, report) = self.solve(start, &specs, &p.weights, &p.solver)?;
-        // Each correction's factors follow the map's, its relation last.
-        let mut at = self.num_base_factors();
-        let relation_weights = specs
-            .iter()
-            .map(|c| {
-                at += c.num_factors();
-                report.weights.get(at - 1).copied().unwrap_or(1.0)
-            })
-            .collect();
+        let relation_weights = self.relation_weights(&specs, &report);
         Ok(Solved {
             poses: values.poses,
             lines: values.lines,
@@ -364,12 +352,10 @@ impl CorrectionEngine {
         })
     }
 
-    /// A correction is one statement: where its relation yields (weight `w` below
-    /// [`YIELDED`] in `solved`), the claim that its observations lie on one line each yields
-    /// with it. The kept solution is solved once more from where it is, every correction's
-    /// point-to-line information multiplied by its relation's weight; the decisions (which
-    /// reading, which statements yield) stay those made on `solved` (docs/ALGORITHM.md §I.21).
-    fn points_yield(
+    /// The kept solution with the point-to-line blocks of every yielding relation yielding
+    /// with it ([`CorrectionEngine::points_yield`]); the decisions (which reading, which
+    /// statements yield) stay those made on `solved` (docs/ALGORITHM.md §I.21).
+    fn relax_yielded(
         &mut self,
         scans: &Scans,
         h: &Interpretation,
@@ -385,21 +371,23 @@ impl CorrectionEngine {
             specs.push(spec(scans, c.mode, &c.s_a, &c.s_b)?);
         }
         specs.push(spec(scans, h.mode, &h.s_a, &h.s_b)?);
-        // Row scales: the square root of each relation's weight (a floor keeps the lines
-        // defined; at 1e-3 of their rows' weight they no longer move a pose).
-        let scales: Vec<f64> = solved
-            .relation_weights
-            .iter()
-            .map(|w| w.clamp(1e-6, 1.0).sqrt())
-            .collect();
-        let (values, report) =
-            self.solve_scaled(solved.poses.clone(), &specs, &p.weights, &p.solver, &scales)?;
-        Ok(Solved {
-            poses: values.poses,
-            lines: values.lines,
-            report,
-            ..solved
-        })
+        Ok(
+            match self.points_yield(
+                solved.poses.clone(),
+                &specs,
+                &p.weights,
+                &p.solver,
+                &solved.relation_weights,
+            )? {
+                Some((values, report)) => Solved {
+                    poses: values.poses,
+                    lines: values.lines,
+                    report,
+                    ..solved
+                },
+                None => solved,
+            },
+        )
     }
 
     /// Where the new correction contradicts earlier ones (some earlier relation yields in
@@ -522,7 +510,7 @@ impl CorrectionEngine {
             h.notes.push(note);
         }
         if p.points_yield {
-            solved = self.points_yield(scans, &h, solved, active, p)?;
+            solved = self.relax_yielded(scans, &h, solved, active, p)?;
         }
         Ok(Applied {
             interpretation: h,

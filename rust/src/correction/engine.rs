@@ -18,6 +18,10 @@ use crate::se2::Pose2;
 use crate::solver::{optimize, SolveReport, SolverParams, SparsityPattern};
 use crate::values::{Key, Line2, Values};
 
+/// Below this robust weight a relation counts as yielding to contradicting evidence (as
+/// `hitl_slam.solve.downweighted`).
+pub const YIELDED: f64 = 0.5;
+
 /// How many sparsity patterns (one per structure of the human part) are kept.
 pub const PATTERN_CACHE: usize = 6;
 
@@ -332,6 +336,67 @@ impl CorrectionEngine {
         params: &SolverParams,
     ) -> Result<(Values, SolveReport)> {
         self.solve_scaled(poses, corrections, weights, params, &[])
+    }
+
+    /// The robust weight of each correction's relation in `report`, a solve of `corrections`
+    /// (each correction's factors follow the map's, its relation last; 1 without a kernel).
+    pub fn relation_weights(
+        &self,
+        corrections: &[CorrectionSpec],
+        report: &SolveReport,
+    ) -> Vec<f64> {
+        let mut at = self.num_base_factors();
+        corrections
+            .iter()
+            .map(|c| {
+                at += c.num_factors();
+                report.weights.get(at - 1).copied().unwrap_or(1.0)
+            })
+            .collect()
+    }
+
+    /// A correction is one statement: where its relation yields (`relation_weights[k]` below
+    /// [`YIELDED`]), the claim that its observations lie on one line each yields with it.
+    /// Solves `corrections` once more from `poses`, every correction's point-to-line
+    /// information multiplied by its relation's weight (docs/ALGORITHM.md §I.21); `None` when
+    /// every relation holds.
+    pub fn points_yield(
+        &mut self,
+        poses: Vec<Pose2>,
+        corrections: &[CorrectionSpec],
+        weights: &HumanWeights,
+        params: &SolverParams,
+        relation_weights: &[f64],
+    ) -> Result<Option<(Values, SolveReport)>> {
+        if relation_weights.iter().all(|w| *w >= YIELDED) {
+            return Ok(None);
+        }
+        // Row scales: the square root of each relation's weight (floored so that the lines
+        // stay defined; at 1e-6 of their information they no longer move a pose).
+        let scales: Vec<f64> = relation_weights
+            .iter()
+            .map(|w| w.clamp(1e-6, 1.0).sqrt())
+            .collect();
+        self.solve_scaled(poses, corrections, weights, params, &scales)
+            .map(Some)
+    }
+
+    /// [`Self::solve`], then [`Self::points_yield`] from its solution where a relation yields.
+    pub fn solve_yielding(
+        &mut self,
+        poses: Vec<Pose2>,
+        corrections: &[CorrectionSpec],
+        weights: &HumanWeights,
+        params: &SolverParams,
+    ) -> Result<(Values, SolveReport)> {
+        let (values, report) = self.solve(poses, corrections, weights, params)?;
+        let w = self.relation_weights(corrections, &report);
+        Ok(
+            match self.points_yield(values.poses.clone(), corrections, weights, params, &w)? {
+                Some(relaxed) => relaxed,
+                None => (values, report),
+            },
+        )
     }
 
     /// [`Self::solve`] with correction `k`'s point-to-line rows scaled by `point_scales[k]`

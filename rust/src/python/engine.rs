@@ -579,6 +579,7 @@ impl PyCorrectionEngine {
     /// `(poses, lines (2K, 2) rows (phi, rho), report)`. The GIL is released while solving.
     #[pyo3(signature = (
         poses, corrections, *, sigma_f, k1, k2, average_points = false, sigma_scan = 0.0,
+        points_yield = false,
         even_centroids = false, method = "lm", max_iterations = 100,
         relative_tolerance = 1e-6, absolute_tolerance = 1e-6,
         lambda_initial = 1e-5, robust = None, watchdog_steps = 3
@@ -594,6 +595,7 @@ impl PyCorrectionEngine {
         k2: f64,
         average_points: bool,
         sigma_scan: f64,
+        points_yield: bool,
         even_centroids: bool,
         method: &str,
         max_iterations: usize,
@@ -643,7 +645,15 @@ impl PyCorrectionEngine {
         };
         let engine = &mut self.inner;
         let (values, report) = py
-            .detach(|| guarded(|| engine.solve(start, &specs, &weights, &params)))
+            .detach(|| {
+                guarded(|| {
+                    if points_yield {
+                        engine.solve_yielding(start, &specs, &weights, &params)
+                    } else {
+                        engine.solve(start, &specs, &weights, &params)
+                    }
+                })
+            })
             .map_err(|e| to_py(py, e))?;
         Ok(solved_out(py, &values, report))
     }
