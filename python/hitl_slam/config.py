@@ -124,8 +124,9 @@ class Config:
     near_tie_reading: bool = True
     # a correction is one statement: where its relation yields (§I.8), its point-to-line blocks
     # yield with it, so that a statement that holds only in part does not bend the passes it
-    # selected straight (docs/ALGORITHM.md §I.21)
-    points_yield: bool = True
+    # selected straight (docs/ALGORITHM.md §I.21: measured; the full evaluation at seed 0 was a
+    # little worse with it, so off by default)
+    points_yield: bool = False
     # consistency guard: a correction after which the map's own measurements (its relative-pose
     # factors) score a chi2 above this quantile of chi2 with 3 x edges dof is tried again with
     # the passes nearest the drawings, then refused with the figures (0 = off)
