@@ -21,7 +21,7 @@ from copies_world import WALL_A, WALL_B, CopiesWorld, careful_drawing, copies_wo
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.odometry_check import checked_map
-from hitl_slam.pipeline import apply_correction, joint_kernels, solve_all
+from hitl_slam.pipeline import CorrectionResult, apply_correction, joint_kernels, solve_all
 
 Wall = tuple[tuple[float, float], tuple[float, float]]
 
@@ -135,42 +135,13 @@ def test_the_relation_kernel_is_added_unless_one_is_named() -> None:
     assert joint_kernels(named) == [("relation", "cauchy:5"), ("odometry", "huber")]
 
 
-@pytest.mark.parametrize("seed", range(2))
-def test_a_false_statement_after_true_ones_is_the_one_that_yields(seed: int) -> None:
-    # The true statements first (the second lap put on the first), then the false one, drawn
-    # on the corrected map where both laps' copies of each wall coincide. Solved from its own
-    # explicit step the false one would hold and the true ones yield; solved from the map as
-    # shown it yields, at the lower robust cost, and the note says so.
-    rng = np.random.default_rng(950 + seed)
-    w = copies_world([(0.0, 0.0, 0.0), (0.0, 0.4, math.radians(2.0))], seed)
-    a0, a1 = w.copy_of(WALL_A, 0), w.copy_of(WALL_A, 1)
-    b0, b1 = w.copy_of(WALL_B, 0), w.copy_of(WALL_B, 1)
-
-    def drawing(c0: np.ndarray, c1: np.ndarray, others: tuple[np.ndarray, ...]) -> DrawnCorrection:
-        return DrawnCorrection.make(
-            careful_drawing(c0, rng, offset=(0.0, 0.05), others=others),
-            careful_drawing(c1, rng, offset=(0.0, 0.05), others=others),
-            Mode.COLLINEAR,
-        )
-
-    true_a = _interpret(w, drawing(a0, a1, (b0, b1)), UNGUARDED)
-    true_b = apply_correction(w.map, w.map.poses, drawing(b0, b1, (a0, a1)), (true_a,), UNGUARDED)
-    shown = true_b.poses
-    assert _lap_error(w, shown)[0] < 0.05
-    # On the corrected map every copy of wall A lies on y = 0 and of wall B on y = 3.
-    flat_a, flat_b = np.array(WALL_A), np.array(WALL_B)
-    false = drawing(flat_a, flat_b, ())
-    result = apply_correction(w.map, shown, false, (true_a, true_b.interpretation), UNGUARDED)
-    notes = " ".join(result.interpretation.notes)
-    assert "this correction holds only in part" in notes, notes
-    assert "yield:" not in notes, notes
-    assert np.max(np.hypot(*(result.poses[:, :2] - shown[:, :2]).T)) < 0.1
-
-
-def _moved_by_a_yielded_statement(seed: int, points_yield: bool) -> tuple[float, float]:
-    """The scene of the test above with ``Config.points_yield`` as given: how far [m, deg] the
-    false statement, which yields, moves the map the true ones made."""
-    config = dataclasses.replace(UNGUARDED, points_yield=points_yield)
+def _false_after_true(
+    seed: int, config: Config
+) -> tuple[CopiesWorld, np.ndarray, list[Interpretation], CorrectionResult]:
+    """Two laps; the true statements first (the second lap's walls A and B put on the first's),
+    then a false one ("wall A and wall B are one line"), drawn on the corrected map where both
+    laps' copies of each wall coincide. Returns the world, the map the true ones made, their
+    interpretations, and the false one's result."""
     rng = np.random.default_rng(950 + seed)
     w = copies_world([(0.0, 0.0, 0.0), (0.0, 0.4, math.radians(2.0))], seed)
     a0, a1 = w.copy_of(WALL_A, 0), w.copy_of(WALL_A, 1)
@@ -185,14 +156,36 @@ def _moved_by_a_yielded_statement(seed: int, points_yield: bool) -> tuple[float,
 
     true_a = _interpret(w, drawing(a0, a1, (b0, b1)), config)
     true_b = apply_correction(w.map, w.map.poses, drawing(b0, b1, (a0, a1)), (true_a,), config)
-    shown = true_b.poses
+    active = [true_a, true_b.interpretation]
+    # On the corrected map every copy of wall A lies on y = 0 and of wall B on y = 3.
     false = drawing(np.array(WALL_A), np.array(WALL_B), ())
-    result = apply_correction(w.map, shown, false, (true_a, true_b.interpretation), config)
+    result = apply_correction(w.map, true_b.poses, false, active, config)
+    return w, true_b.poses, active, result
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_a_false_statement_after_true_ones_is_the_one_that_yields(seed: int) -> None:
+    # Solved from its own explicit step the false one would hold and the true ones yield;
+    # solved from the map as shown it yields, at the lower robust cost, and the note says so.
+    w, shown, _, result = _false_after_true(seed, UNGUARDED)
+    assert _lap_error(w, shown)[0] < 0.05
+    notes = " ".join(result.interpretation.notes)
+    assert "this correction holds only in part" in notes, notes
+    assert "yield:" not in notes, notes
+    assert np.max(np.hypot(*(result.poses[:, :2] - shown[:, :2]).T)) < 0.1
+
+
+def _moved_by_a_yielded_statement(seed: int, points_yield: bool) -> tuple[float, float]:
+    """The scene of :func:`_false_after_true` with ``Config.points_yield`` as given: how far [m,
+    deg] the false statement, which yields, moves the map the true ones made."""
+    config = dataclasses.replace(UNGUARDED, points_yield=points_yield)
+    w, shown, active, result = _false_after_true(seed, config)
     assert "this correction holds only in part (weight 0.00)" in result.interpretation.notes[-1]
     turn = np.remainder(result.poses[:, 2] - shown[:, 2] + math.pi, 2 * math.pi) - math.pi
     # Every joint solve lets the blocks yield alike: solving the set again keeps the map.
-    active = [true_a, true_b.interpretation, result.interpretation]
-    again, _, _ = solve_all(checked_map(w.map, config), active, config, result.poses)
+    again, _, _ = solve_all(
+        checked_map(w.map, config), [*active, result.interpretation], config, result.poses
+    )
     assert np.max(np.abs(again[:, :2] - result.poses[:, :2])) < 0.01
     return (
         float(np.max(np.hypot(*(result.poses[:, :2] - shown[:, :2]).T))),
