@@ -335,11 +335,7 @@ impl CorrectionEngine {
         active: &[Active],
         p: &ApplyParams,
     ) -> Result<Solved> {
-        let mut specs = Vec::with_capacity(active.len() + 1);
-        for c in active {
-            specs.push(spec(scans, c.mode, &c.s_a, &c.s_b)?);
-        }
-        specs.push(spec(scans, h.mode, &h.s_a, &h.s_b)?);
+        let specs = specs_with(scans, active, h)?;
         let (values, report) = self.solve(start, &specs, &p.weights, &p.solver)?;
         let relation_weights = self.relation_weights(&specs, &report);
         Ok(Solved {
@@ -366,11 +362,7 @@ impl CorrectionEngine {
         if solved.relation_weights.iter().all(|w| *w >= YIELDED) {
             return Ok(solved);
         }
-        let mut specs = Vec::with_capacity(active.len() + 1);
-        for c in active {
-            specs.push(spec(scans, c.mode, &c.s_a, &c.s_b)?);
-        }
-        specs.push(spec(scans, h.mode, &h.s_a, &h.s_b)?);
+        let specs = specs_with(scans, active, h)?;
         Ok(
             match self.points_yield(
                 solved.poses.clone(),
@@ -808,6 +800,16 @@ impl CorrectionEngine {
 }
 
 /// A correction's factors' input: its observations grouped by pose.
+/// The joint solve's corrections: every one of `active`, in order, then `h`.
+fn specs_with(scans: &Scans, active: &[Active], h: &Interpretation) -> Result<Vec<CorrectionSpec>> {
+    let mut specs = Vec::with_capacity(active.len() + 1);
+    for c in active {
+        specs.push(spec(scans, c.mode, &c.s_a, &c.s_b)?);
+    }
+    specs.push(spec(scans, h.mode, &h.s_a, &h.s_b)?);
+    Ok(specs)
+}
+
 pub fn spec(scans: &Scans, mode: RelationMode, s_a: &[Row], s_b: &[Row]) -> Result<CorrectionSpec> {
     Ok(CorrectionSpec {
         mode,
