@@ -210,3 +210,62 @@ def write_bag(bag: Bag, path: Path, kind: str) -> Path:
         shutil.rmtree(path)
         return lone
     return path
+
+
+def slam_bag_of_log(
+    log: Path, seed: int = 0, *, map_frame: bool = True
+) -> tuple[Bag, NDArray[np.float64]]:
+    """A bag as a SLAM (slam_toolbox, Cartographer) records it, made from the FLASER lines of a
+    CARMEN log whose logged poses are a good map (a corrected log): the logged poses are the
+    SLAM's trajectory ``map -> base_link`` (the laser is the robot's frame), the odometry
+    ``odom -> base_link`` drifts away from it (a random walk), and ``map -> odom`` (when
+    ``map_frame``) makes up the difference, on /tf at each scan's stamp (100 s + 0.2 s per scan:
+    corrected logs often carry one timestamp for every scan). Readings at the log's maximum range
+    are no-returns (inf). Returns the bag and the trajectory ``(N, 3)``."""
+    import gzip
+
+    opener = gzip.open if log.name.endswith(".gz") else open
+    with opener(log, "rt") as f:
+        lines = [line.split() for line in f if line.startswith(("FLASER", "PARAM"))]
+    params = {t[1]: float(t[2]) for t in lines if t[0] == "PARAM" and len(t) > 2}
+    limit = params.get("robot_front_laser_max", 80.0) - 1e-3
+    rng = np.random.default_rng(seed)
+    scans, slam, stamps = [], [], []
+    for t in (t for t in lines if t[0] == "FLASER"):
+        n = int(t[1])
+        r = np.array(t[2 : 2 + n], dtype=np.float64)
+        slam.append([float(v) for v in t[2 + n : 5 + n]])
+        stamps.append((500 + len(stamps)) * 200_000_000)
+        step = math.pi / (n - 1) if n in (181, 361) else math.pi / n
+        ranges = np.where((r > 0) & (r < limit), r, np.inf)
+        scans.append(Scan(stamps[-1], ranges, -math.pi / 2, step, 0.0, 80.0, "base_link"))
+    trajectory = np.array(slam)
+    trajectory[:, 2] = np.arctan2(np.sin(trajectory[:, 2]), np.cos(trajectory[:, 2]))
+    drift = np.cumsum(rng.normal(0, [0.01, 0.01, 0.004], trajectory.shape), axis=0)
+    odometry = _compose(trajectory, drift)
+    map_odom = _compose(trajectory, _inverse(odometry))
+    bag = Bag(scans=scans)
+    for k, stamp in enumerate(stamps):
+        group = [Transform(stamp, "odom", "base_link", tuple(odometry[k]))]
+        if map_frame:
+            group.append(Transform(stamp, "map", "odom", tuple(map_odom[k])))
+        bag.tf.append(group)
+    return bag, trajectory
+
+
+def _compose(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    theta = a[:, 2] + b[:, 2]
+    return np.stack(
+        [
+            a[:, 0] + c * b[:, 0] - s * b[:, 1],
+            a[:, 1] + s * b[:, 0] + c * b[:, 1],
+            np.arctan2(np.sin(theta), np.cos(theta)),
+        ],
+        axis=1,
+    )
+
+
+def _inverse(a: NDArray[np.float64]) -> NDArray[np.float64]:
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    return np.stack([-c * a[:, 0] - s * a[:, 1], s * a[:, 0] - c * a[:, 1], -a[:, 2]], axis=1)

@@ -482,3 +482,78 @@ def test_both_point_paths_place_the_scans_by_the_poses(
     assert overlap > 0.8, overlap
     for p in pages.values():
         assert p.errors == []
+
+
+def test_the_front_ends_doubtful_stretches_are_drawn_and_said(tmp_path: Path, browser: Any) -> None:
+    """A front-end map whose metadata names doubtful stretches (issue 39, point 6): the page draws
+    a purple band along the poses of each, and its status bar gives the verdict and the
+    comparison with a bag's own SLAM trajectory."""
+    import dataclasses
+
+    room = lost_poses_room(0).map
+    stretches = [
+        {"first": 40, "last": 90, "reason": "match failed"},
+        {"first": 300, "last": 330, "reason": "contradicts the loop closures"},
+    ]
+    m = dataclasses.replace(
+        room,
+        name="room (hitl-slam front end)",
+        metadata={
+            **room.metadata,
+            "front_end": "hitl-slam",
+            "front_end_verdict": "doubtful",
+            "front_end_doubtful": stretches,
+            "trajectory_comparison": {
+                "trajectory": "slam (map -> base_link)",
+                "bag_slam_m2": 12.5,
+                "front_end_m2": 9.25,
+            },
+        },
+    )
+    path = tmp_path / "room.hitl"
+    Session.new(m, str(path)).close()
+    with serve(tmp_path, str(path)) as server:
+        page = open_page(browser, server.url)
+        drawn = page.evaluate("window.hitl.doubtful()")
+        assert [(s["first"], s["last"], s["reason"]) for s in drawn] == [
+            (s["first"], s["last"], s["reason"]) for s in stretches
+        ]
+        poses = server.poses()
+        for s, placed in zip(stretches, drawn, strict=True):
+            path_xy = np.array(placed["path"])
+            assert len(path_xy) == s["last"] - s["first"] + 1
+            np.testing.assert_allclose(path_xy, poses[s["first"] : s["last"] + 1, :2], atol=1e-5)
+        assert page.evaluate("window.hitl.verdictStatus()") == (
+            "front end: doubtful map: 2 stretches, scans 40-90, 300-330"
+        )
+        assert page.evaluate("window.hitl.compareStatus()") == (
+            "at start: bag's SLAM 12.50 \u00b7 front end 9.25 m\u00b2 (front end lower)"
+        )
+        tooltip = page.locator("#st-verdict").get_attribute("title")
+        assert tooltip.endswith(
+            "scans 40-90: match failed\nscans 300-330: contradicts the loop closures"
+        ), tooltip
+        assert page.locator("#legend-doubtful").is_visible()
+        assert page.locator("#st-verdict").is_visible()
+        # The band is on the screen, along each stretch: purple pixels around its middle pose.
+        pixels = canvas_pixels(page).astype(np.int16)
+        purple = (pixels[..., 0] > pixels[..., 1] + 25) & (pixels[..., 2] > pixels[..., 1] + 25)
+        box = page.locator("#map").bounding_box()
+        for s in stretches:
+            middle = poses[(s["first"] + s["last"]) // 2, :2]
+            x, y = to_client(page, [float(v) for v in middle])
+            col, row = int(x - box["x"]), int(y - box["y"])
+            assert purple[row - 10 : row + 11, col - 10 : col + 11].sum() > 5, s
+        save_artifact(page, "doubtful-stretches.png")
+        assert page.errors == []
+        page.context.close()
+
+
+def test_a_map_without_a_verdict_says_nothing_of_one(browser: Any, shared_demo: Server) -> None:
+    page = open_page(browser, shared_demo.url)
+    assert page.evaluate("window.hitl.doubtful()") == []
+    assert page.evaluate("window.hitl.mapInfo.poses") == "as_input"
+    assert not page.locator("#st-verdict").is_visible()
+    assert not page.locator("#st-compare").is_visible()
+    assert not page.locator("#legend-doubtful").is_visible()
+    page.context.close()

@@ -925,7 +925,10 @@ examples:
   hitl-slam serve --demo --demo-world campus   # the 3,380-pose campus instead
   hitl-slam serve run.clf.gz                   # a raw log: the front end builds the map first,
                                                # then run.hitl beside it (reopened next time)
-  hitl-slam serve run.bag                      # a ROS bag: the same
+  hitl-slam serve run.bag                      # a ROS bag: its own SLAM's map when /tf has
+                                               # map -> odom, else the front end's
+  hitl-slam serve run.bag --slam               # the front end's map even so, compared with
+                                               # the bag's own by their inconsistency
   hitl-slam serve corrected.log.gz --no-slam   # a log whose poses are already a map: as logged
   hitl-slam serve lab.covars                   # a map: lab.hitl beside it
   hitl-slam serve run.hitl --journal fixes.jsonl   # step through a corrections file with l
@@ -944,7 +947,18 @@ trusted, amber: down-weighted, red dashed: rejected; c shows or hides them). Cli
 it (n / N step through them), x rejects or reinstates it: the map re-solves at once, and the
 step is journaled and undone like a correction. Every .clf/.log is taken as raw: a log whose
 logged poses are already a good map (a corrected log, another SLAM's output) is served as logged
-with --no-slam (no loop closures then).
+with --no-slam (no loop closures then). Stretches the front end doubts, when it names any, are
+drawn in purple and listed in the status bar.
+
+A ROS bag recorded with a SLAM running (slam_toolbox, Cartographer, gmapping, AMCL: /tf has
+map -> odom) is the map you came to repair: serve starts from the SLAM's own trajectory
+(map -> base_link), its factors the chain of steps between consecutive scans (no loop closures),
+and says so. --slam rebuilds it with the front end from the bag's odometry instead (over the
+same scans) and shows both maps' inconsistency side by side in the status bar (lower is more
+consistent). --map-frame '' ignores the bag's SLAM (the front end's map, or with --no-slam the
+odometry as recorded). --slam and --no-slam together are an error. A session beside the log is
+reopened only when it holds the poses asked for (else one line saying which it holds and how to
+serve it).
 
 Every correction is journaled in the session file (.hitl) before the map changes, so Ctrl-C (or
 a crash) loses nothing acknowledged; serving the same file again continues where you left off.
@@ -1006,6 +1020,16 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         raise InputError("--demo-world goes with --demo; add --demo, or drop --demo-world")
     if args.demo and args.target is not None:
         raise InputError(f"give {args.target} or --demo, not both")
+    if args.slam and args.no_slam:
+        raise InputError(
+            "give --slam (the front end rebuilds the map from the log's odometry) or --no-slam "
+            "(the log's own poses as they are), not both"
+        )
+    if args.demo and (args.slam or args.no_slam):
+        flag = "--slam" if args.slam else "--no-slam"
+        raise InputError(
+            f"{flag} chooses how a raw log becomes a map; --demo has none: drop {flag}"
+        )
 
     def announce(message: str) -> None:
         print(message, flush=True)
@@ -1015,7 +1039,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         run_server(
             args.target,
             max_range=args.max_range,
-            front_end=not args.no_slam,
+            front_end=True if args.slam else False if args.no_slam else None,
             progress=progress,
             bag=_bag_options(args),
             demo=(args.demo_world or "lost-poses") if args.demo else None,
@@ -1412,16 +1436,27 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="?",
         metavar="MAP_OR_SESSION",
         help=(
-            "a raw log (.clf/.log[.gz|.bz2], a ROS bag: the front end builds the map first), a "
-            "map (.covars), or a .hitl; the session <stem>.hitl goes beside a log or map"
+            "a raw log (.clf/.log[.gz|.bz2], a ROS bag: the front end builds the map first, "
+            "unless the bag has its own SLAM's map frame), a map (.covars), or a .hitl; the "
+            "session <stem>.hitl goes beside a log or map"
+        ),
+    )
+    serve.add_argument(
+        "--slam",
+        action="store_true",
+        help=(
+            "a bag with its own SLAM (map -> odom on /tf): rebuild the map with the front end from "
+            "the bag's odometry instead of serving the SLAM's trajectory, and show the "
+            "inconsistency of both; a .clf/.log or a bag without one gets the front end anyway"
         ),
     )
     serve.add_argument(
         "--no-slam",
         action="store_true",
         help=(
-            "serve a .clf/.log or bag with its logged poses as the map, without the front end "
-            "(for a corrected log or another SLAM's output)"
+            "serve a .clf/.log or bag with its own poses as the map (logged poses; a bag's own "
+            "SLAM trajectory, else its odometry), without the front end (for a corrected log or "
+            "another SLAM's output); not with --slam"
         ),
     )
     serve.add_argument(

@@ -206,6 +206,11 @@ def create_app(
     async def corrections(drawn: schemas.Drawn) -> dict[str, Any]:
         return await run_in_threadpool(host.apply, drawn.to_correction())
 
+    @app.get("/api/map/info", response_model=schemas.MapInfo)
+    async def map_info() -> dict[str, Any]:
+        # Built once with the host: it never changes, so the page fetches it once.
+        return host.map_info()
+
     @app.get("/api/loop_closures", response_model=schemas.LoopClosures)
     async def loop_closures() -> dict[str, Any]:
         # Built once with the host: they never change, so the page fetches them once.

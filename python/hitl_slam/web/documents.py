@@ -1,5 +1,6 @@
 """The JSON documents of the web API (shapes in :mod:`hitl_slam.web.schemas`) built from the
-session's objects: a Preview of an interpretation, a history item, the ``last`` change.
+session's objects: a Preview of an interpretation, a history item, the ``last`` change, what the
+served map is (its poses, the front end's verdict, a comparison with a bag's own SLAM).
 """
 
 from __future__ import annotations
@@ -13,9 +14,19 @@ from numpy.typing import NDArray
 from hitl_slam.corrections import Interpretation
 from hitl_slam.loop_closures import LoopClosure
 from hitl_slam.map import Map
+from hitl_slam.own_slam import COMPARISON
 from hitl_slam.session import AlignStep, HistoryEntry
+from hitl_slam.web import origin, verdict
 
-__all__ = ["alignment", "history_item", "last_change", "loop_closures", "preview", "segment_json"]
+__all__ = [
+    "alignment",
+    "history_item",
+    "last_change",
+    "loop_closures",
+    "map_info",
+    "preview",
+    "segment_json",
+]
 
 
 def segment_json(segment: Any) -> list[list[float]]:
@@ -75,6 +86,32 @@ def loop_closures(items: list[LoopClosure]) -> dict[str, Any]:
         "weight": [c.weight for c in items],
         "score": [c.score for c in items],
         "auto_rejected": [c.auto_rejected for c in items],
+    }
+
+
+def map_info(map: Map) -> dict[str, Any]:
+    """The MapInfo document: which poses the map holds (``poses``: ``front_end``, ``own_slam``
+    or ``as_input``, and in words), the front end's verdict and doubtful stretches when it gave
+    them (metadata ``front_end_verdict``, ``front_end_doubtful``; :mod:`hitl_slam.web.verdict`),
+    and, for the front end's map of a bag with its own SLAM, the inconsistency of both
+    (``comparison``). It never changes: the page fetches it once."""
+    compared = map.metadata.get(COMPARISON)
+    comparison = None
+    if isinstance(compared, dict):
+        try:
+            comparison = {
+                "trajectory": str(compared.get("trajectory", "")),
+                "bag_slam_m2": float(compared["bag_slam_m2"]),
+                "front_end_m2": float(compared["front_end_m2"]),
+            }
+        except (KeyError, TypeError, ValueError):
+            comparison = None  # not this version's: shown as none
+    return {
+        "poses": origin.held(map).value,
+        "description": origin.describe(map),
+        verdict.VERDICT: verdict.verdict(map),
+        verdict.DOUBTFUL: verdict.doubtful_stretches(map),
+        "comparison": comparison,
     }
 
 

@@ -106,6 +106,7 @@ class SessionHost:
         self._map = session.input_map
         self._drawing = MapDrawing(self._map)
         self._loops = documents.loop_closures(session.loop_closures)
+        self._info = documents.map_info(self._map)
         self._loop_count = len(self._loops["pairs"])
         self._steps = tuple(journal)
         self._journal_source = journal_source
@@ -231,6 +232,12 @@ class SessionHost:
         pair of poses, the front end's trust in it (weight, 0..1), its score and whether the front
         end rejected it. Which are rejected now is in the state (``loop_closures.rejected``)."""
         return self._loops
+
+    def map_info(self) -> dict[str, Any]:
+        """What the served map is, which never changes (the page fetches it once): which poses
+        it holds, the front end's verdict and doubtful stretches, and for the front end's map of
+        a bag with its own SLAM, the inconsistency of both (see :func:`documents.map_info`)."""
+        return self._info
 
     def offsets(self) -> bytes:
         """int32 LE (N + 1,): pose i's points are points[offsets[i]:offsets[i + 1]]."""

@@ -18,6 +18,7 @@ __all__ = [
     "Applied",
     "AppliedAccepted",
     "CorrectionLines",
+    "DoubtfulStretch",
     "Drawn",
     "ExportRequest",
     "Files",
@@ -27,6 +28,7 @@ __all__ = [
     "LoopClosureRequest",
     "LoopClosureState",
     "LoopClosures",
+    "MapInfo",
     "Preview",
     "PreviewAccepted",
     "PreviewRejected",
@@ -35,6 +37,7 @@ __all__ = [
     "SaveRequest",
     "SolvedLine",
     "State",
+    "TrajectoryComparison",
 ]
 
 MAX_COORDINATE = 1e9
@@ -178,6 +181,32 @@ class LoopClosures(_Response):
     weight: list[float]  # the front end's trust, 0..1 (below 0.5: it rejected it)
     score: list[float]  # the correlative score of its match, 0..1
     auto_rejected: list[bool]
+
+
+class DoubtfulStretch(_Response):
+    """Scans ``first``..``last`` (0-based, inclusive) the front end doubts, and why."""
+
+    first: int
+    last: int
+    reason: str
+
+
+class TrajectoryComparison(_Response):
+    """The front end's map of a bag beside the bag's own SLAM trajectory, before any correction."""
+
+    trajectory: str  # the bag's, e.g. "slam (map -> base_link)"
+    bag_slam_m2: float  # [m^2] the inconsistency of the bag's own SLAM trajectory
+    front_end_m2: float  # [m^2] and of the front end's map, over the same scans
+
+
+class MapInfo(_Response):
+    """What the served map is; it never changes (an addition to the contract, issue 39)."""
+
+    poses: Literal["front_end", "own_slam", "as_input"]
+    description: str  # the same in words, e.g. "the bag's own SLAM trajectory (map -> base_link)"
+    front_end_verdict: str | None  # "good" or "doubtful"; None: the front end gave none
+    front_end_doubtful: list[DoubtfulStretch]
+    comparison: TrajectoryComparison | None
 
 
 class State(_Response):

@@ -1,13 +1,12 @@
 """Starting the web UI: open or create the session (a map file, a ``.hitl`` file, a raw log run
-through the front end first, or the demo room), bind the socket, build the app and run uvicorn
-until Ctrl-C. Everything the user is told goes through the ``announce`` and ``progress``
-callbacks (the CLI prints them); this module never prints.
+through the front end first, a ROS bag's own SLAM trajectory, or the demo room), bind the socket,
+build the app and run uvicorn until Ctrl-C. Everything the user is told goes through the
+``announce`` and ``progress`` callbacks (the CLI prints them); this module never prints.
 """
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import gc
 import ipaddress
 import logging
@@ -25,10 +24,14 @@ from fastapi import FastAPI
 
 from hitl_slam.corrections_file import Step
 from hitl_slam.errors import InputError
+from hitl_slam.map import Map
+from hitl_slam.own_slam import COMPARISON, compare, trajectory_of
 from hitl_slam.session import Session
 from hitl_slam.web.app import DEFAULT_MAX_BODY, create_app
 from hitl_slam.web.host import DEFAULT_POLL_TIMEOUT, SessionHost
+from hitl_slam.web.origin import check_session_of, describe
 from hitl_slam.web.security import check_token, is_loopback, new_token
+from hitl_slam.web.verdict import summary as verdict_summary
 
 if TYPE_CHECKING:
     from hitl_slam.io.rosbag import BagOptions
@@ -54,7 +57,6 @@ DEMO_WORLDS = ("lost-poses", "campus")
 
 _COMPRESSED = (".gz", ".bz2")
 _RAW_LOGS = (".clf", ".log")
-_FRONT_END_MARK = "hitl-slam"  # map.metadata["front_end"] of a map the front end built
 
 FrontEndProgress = Callable[[int, int, float | None], object]
 """``progress(scans done, scans in all, real-time factor so far or None)`` while the front end
@@ -73,29 +75,17 @@ def is_raw_log(path: str | os.PathLike[str]) -> bool:
     return os.path.splitext(name)[1] in _RAW_LOGS or is_rosbag(path)
 
 
-def _built_by_front_end(session: Session) -> bool:
-    m = session.input_map
-    return m.metadata.get("front_end") == _FRONT_END_MARK or m.name.endswith(
-        "(hitl-slam front end)"
-    )
-
-
 def _front_end(
     source: Path,
-    max_range: float | None,
+    raw: Map,
     progress: FrontEndProgress | None,
-    bag: BagOptions | None = None,
+    own: Map | None = None,
 ) -> tuple[Session, str]:
-    """Runs the front end over the raw log ``source`` and starts its session beside it (a bag
-    read with ``bag``'s topics and frames)."""
-    from hitl_slam.io.maps import load_map
-    from hitl_slam.io.rosbag import BagOptions, is_rosbag
+    """Runs the front end over ``raw`` (the odometry map of the raw log ``source``) and starts its
+    session beside the log. ``own``: the bag's own SLAM trajectory the front end's map replaces;
+    the two are then compared by the inconsistency metric (stored in the map's metadata)."""
     from hitl_slam.slam import slam
 
-    # A bag's own SLAM trajectory is not where the front end starts: its odometry is.
-    if is_rosbag(source):
-        bag = dataclasses.replace(bag or BagOptions(), map_frame=None)
-    raw = load_map(source, max_range=max_range, bag=bag)
     duration = None
     if raw.timestamps is not None and raw.num_poses > 1:
         duration = float(raw.timestamps[-1] - raw.timestamps[0])
@@ -111,12 +101,59 @@ def _front_end(
         progress(done, total, rtf)
 
     result = slam(raw, progress=report)
+    compared = ""
+    if own is not None:
+        comparison = compare(own, result.map)
+        result.map.metadata[COMPARISON] = comparison
+        compared = (
+            f"; inconsistency: the bag's own SLAM trajectory {comparison['bag_slam_m2']:.2f} m^2, "
+            f"the front end's map {comparison['front_end_m2']:.2f} m^2"
+        )
     path = session_path_for(source)
     session = Session.new(result.map, path)
+    start = "from the bag's odometry, in place of its own SLAM trajectory " if own else ""
+    # The front end's summary gives its verdict on the map, if any.
     return session, (
-        f"ran the front end over {source} ({result.summary()}) and created the session {path} "
-        f"({_describe(session)})"
+        f"ran the front end over {source} {start}({result.summary()}{compared}) and created the "
+        f"session {path} ({_describe(session)})"
     )
+
+
+def _from_raw_log(
+    source: Path,
+    front_end: bool | None,
+    max_range: float | None,
+    progress: FrontEndProgress | None,
+    bag: BagOptions | None,
+) -> tuple[Session, str]:
+    """The new session of the raw log ``source`` (no session beside it yet), with the poses
+    ``front_end`` asks for (see :mod:`hitl_slam.web.origin`)."""
+    from hitl_slam.io.maps import load_map
+    from hitl_slam.io.rosbag import BagOptions, is_rosbag
+    from hitl_slam.own_slam import has_own_slam, odometry_map, own_slam_map
+
+    options = (bag or BagOptions()) if is_rosbag(source) else bag
+    # A bag is read once, with its map frame: its own SLAM trajectory, if it has one, and the
+    # odometry beside it, which the front end starts from (over the same scans, so they compare).
+    loaded = load_map(source, max_range=max_range, bag=options)
+    path = session_path_for(source)
+    if options is not None and has_own_slam(loaded):
+        own = own_slam_map(loaded)
+        if front_end is True:
+            return _front_end(source, odometry_map(loaded, options.odom_frame), progress, own)
+        session = Session.new(own, path)
+        frames = trajectory_of(own).removeprefix("slam (").removesuffix(")")
+        return session, (
+            f"{source}: starting from the bag's own SLAM trajectory ({frames}, {own.num_poses} "
+            "scans); --slam rebuilds it with the front end; created the session "
+            f"{path} ({_describe(session)})"
+        )
+    if front_end is False:
+        session = Session.new(loaded, path)
+        return session, (
+            f"created the session {path} from {source} ({describe(loaded)}; {_describe(session)})"
+        )
+    return _front_end(source, loaded, progress)
 
 
 _HINT = (
@@ -157,25 +194,30 @@ def open_session(
     seed: int = 0,
     cwd: str | os.PathLike[str] | None = None,
     max_range: float | None = None,
-    front_end: bool = True,
+    front_end: bool | None = None,
     progress: FrontEndProgress | None = None,
     bag: BagOptions | None = None,
 ) -> tuple[Session, str]:
-    """The session to serve and a sentence saying where it came from.
+    """The session to serve and a sentence saying where it came from (and which poses it holds).
 
     ``target``: a ``.hitl`` file (reopened) or a map file (its session ``<stem>.hitl`` beside it
-    is created, or reopened when it exists). A raw log (:func:`is_raw_log`) is first run through
-    the front end (``progress`` is told how far it is), unless ``front_end`` is False: then its
-    logged poses are the map, as for a log that is already a corrected map. An existing session
-    is reopened only when it was made the same way (with or without the front end) from a file
-    of this name. ``demo``: one of :data:`DEMO_WORLDS`, kept in ``<cwd>/hitl-demo/<world>.hitl``
-    (reopened when present). Exactly one of them. ``bag``: what to read from a ROS bag (topics,
-    frames; the front end always starts from the odometry).
+    is created, or reopened when it exists). A raw log (:func:`is_raw_log`) becomes a map as
+    ``front_end`` says: None (the default) a ROS bag's own SLAM trajectory when ``/tf`` has
+    ``map -> odom`` (``bag.map_frame``; its chain of steps measured from its poses, no loop
+    closures: :func:`hitl_slam.own_slam.own_slam_map`), else the front end's map built from the
+    log's odometry (``progress`` is told how far it is); True (``--slam``) the front end's map
+    always (on a bag with its own SLAM, from the odometry over the same scans, and the two are
+    compared by the inconsistency metric: ``metadata["trajectory_comparison"]``); False
+    (``--no-slam``) the log's own poses (a bag's own SLAM trajectory, else its odometry), as for a
+    log that is already a corrected map. An existing session is reopened only when it was made
+    from a file of this name and holds the poses asked for (:mod:`hitl_slam.web.origin`).
+    ``demo``: one of :data:`DEMO_WORLDS`, kept in ``<cwd>/hitl-demo/<world>.hitl`` (reopened when
+    present). Exactly one of them. ``bag``: what to read from a ROS bag (topics, frames).
 
     Raises:
         InputError: neither or both given, an unknown demo world, a missing or unreadable file,
-            ``front_end=False`` for a target that is not a raw log, an existing session that is
-            not this log's (made from another file, or the other way).
+            ``front_end`` True or False for a target that is not a raw log, an existing session
+            that is not this log's (made from another file, or holding other poses).
     """
     if (target is None) == (demo is None):
         raise InputError(
@@ -202,11 +244,7 @@ def open_session(
     assert target is not None  # checked above
     source = Path(target)
     raw = is_raw_log(source)
-    if not front_end and not raw:
-        raise InputError(
-            f"{source}: --no-slam applies to raw logs (.clf, .log, ROS bags), which the front end "
-            "would turn into a map; this is not one: drop --no-slam"
-        )
+    _check_flags(source, raw, front_end)
     if source.suffix.lower() == ".hitl":
         if not source.is_file():
             raise InputError(f"{source}: no such session file; give an existing .hitl file")
@@ -221,16 +259,25 @@ def open_session(
     if path.exists():
         session = Session.open(path)
         try:
-            _check_session_of(session, path, source, raw and front_end)
+            check_session_of(
+                session,
+                path,
+                source,
+                raw=raw,
+                front_end=front_end,
+                map_frame="map" if bag is None else bag.map_frame,
+            )
         except BaseException:
             session.close()
             raise
+        said = verdict_summary(session.input_map)
         return session, (
-            f"reopened the session {path} of {source} ({_describe(session)}); delete it to "
-            "start over from the map"
+            f"reopened the session {path} of {source} ({describe(session.input_map)}; "
+            f"{_describe(session)}); delete it to start over from the map"
+            + (f"; {said}" if said else "")
         )
-    if raw and front_end:
-        return _front_end(source, max_range, progress, bag)
+    if raw:
+        return _from_raw_log(source, front_end, max_range, progress, bag)
     from hitl_slam.io.maps import load_map
 
     the_map = load_map(source, max_range=max_range, bag=bag)
@@ -238,27 +285,14 @@ def open_session(
     return session, f"created the session {path} from {source} ({_describe(session)})"
 
 
-def _check_session_of(session: Session, path: Path, source: Path, front_end: bool) -> None:
-    """Refuses a session beside ``source`` that is not its session as asked for: made from a
-    file of another name, or with the front end when the log's own poses were asked for (or the
-    other way)."""
-    stored = session.input_map.source
-    if stored is not None and Path(stored).name != source.name:
-        raise InputError(
-            f"{path}: this session was made from {Path(stored).name}, not {source.name}; "
-            f"serve {path} itself, or move it away to start a session of {source.name}"
-        )
-    built = _built_by_front_end(session)
-    if not is_raw_log(source) or built == front_end:
+def _check_flags(source: Path, raw: bool, front_end: bool | None) -> None:
+    """--slam and --no-slam choose how a raw log becomes a map; on anything else, an error."""
+    if front_end is None or raw:
         return
-    if front_end:
-        raise InputError(
-            f"{path}: this session holds the log's own poses (made with --no-slam); serve it "
-            "with --no-slam, or move it away to run the front end over the log"
-        )
+    flag = "--slam" if front_end else "--no-slam"
     raise InputError(
-        f"{path}: this session holds the front end's map of the log; serve it without "
-        "--no-slam, or move it away to serve the log's own poses"
+        f"{source}: {flag} applies to raw logs (.clf, .log, ROS bags), which the front end "
+        f"would turn into a map; this is not one: drop {flag}"
     )
 
 
@@ -315,7 +349,7 @@ def run_server(
     no_token: bool = False,
     journal: str | os.PathLike[str] | None = None,
     max_range: float | None = None,
-    front_end: bool = True,
+    front_end: bool | None = None,
     progress: FrontEndProgress | None = None,
     bag: BagOptions | None = None,
     open_browser: bool = False,
@@ -343,7 +377,7 @@ def run_server(
     if no_token and not is_loopback(host):
         raise InputError(f"refusing to serve on {host} without an access token; drop --no-token")
     if (target is None) == (demo is None) or (
-        not front_end and target is not None and not is_raw_log(target)
+        front_end is not None and target is not None and not is_raw_log(target)
     ):
         # The one-line reason, before anything is bound.
         open_session(target, demo=demo, max_range=max_range, front_end=front_end, bag=bag)

@@ -116,6 +116,12 @@ export function applyCorrection(drawn) {
   return postJson("api/corrections", drawn);
 }
 
+/**
+ * GET /api/map/info: what the served map is (its poses in words, the front end's verdict and
+ * doubtful stretches, a comparison with a bag's own SLAM trajectory), once: it never changes.
+ */
+export const getMapInfo = () => getJson("api/map/info");
+
 /** GET /api/loop_closures: the map's loop closures (pairs, weight, score, auto_rejected), once. */
 export const getLoopClosures = () => getJson("api/loop_closures");
 

@@ -32,6 +32,11 @@
 //   selectedLoop     index of the selected loop closure, or null
 //   loopsVisible     whether the loop closures are drawn (key c)
 //   loopStatus()     the status bar's loop closure text
+//   mapInfo          what the served map is (GET /api/map/info), or null before it arrived
+//   doubtful()       the front end's doubtful stretches as drawn: [{first, last, reason, path}]
+//                    (path: the world positions of their poses on screen); [] for none
+//   verdictStatus()  the status bar's text on the front end's verdict ("" when none)
+//   compareStatus()  the status bar's comparison with a bag's own SLAM trajectory ("" when none)
 //   frameTimes()     recent frame durations [ms], each up to a 1-pixel readPixels (GPU done)
 //   rafIntervals()   recent intervals between consecutive animation frames [ms]
 //   splatTimes()     of the frame times, the part spent counting points on the CPU ("cpu" path)
@@ -96,6 +101,12 @@ export function installHooks(app) {
       return app.loopsVisible;
     },
     loopStatus: () => document.getElementById("st-loops").textContent,
+    get mapInfo() {
+      return app.info;
+    },
+    doubtful: () => app.placedDoubtful.map((s) => ({ ...s, path: s.path.map((p) => [...p]) })),
+    verdictStatus: () => document.getElementById("st-verdict").textContent,
+    compareStatus: () => document.getElementById("st-compare").textContent,
     worldToClient(x, y) {
       const rect = app.canvas.getBoundingClientRect();
       const [sx, sy] = app.camera.toScreen(x, y);

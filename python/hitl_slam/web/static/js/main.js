@@ -6,6 +6,7 @@
 import * as api from "./api.js";
 import { Camera } from "./camera.js";
 import { PendingPair, sigmaForScale } from "./correction.js";
+import { comparisonText, placeStretches, stretchLines, stretchList, verdictText } from "./doubtful.js";
 import { installHooks } from "./hooks.js";
 import { attachInput } from "./interaction.js";
 import { ALIGNED_LOOPS, loopLines, pickLoop, placeLoops } from "./loops.js";
@@ -42,6 +43,8 @@ class App {
     this.loopsVisible = true; // key c
     this.selectedLoop = null; // index of the selected loop closure
     this.placedLoops = []; // the loop closures as drawn now (loops.js placeLoops)
+    this.info = null; // what the served map is (GET /api/map/info), fetched once
+    this.placedDoubtful = []; // the front end's doubtful stretches as drawn now (doubtful.js)
     this.lastRedraw = null;
     this.frameScheduled = false;
     this.lastFrameTs = null;
@@ -58,7 +61,9 @@ class App {
     this.resize();
     attachInput(this, this.canvas);
     this.bindButtons();
-    const [state, scans] = await Promise.all([api.getState(), api.getScans()]);
+    const [state, scans, info] = await Promise.all([api.getState(), api.getScans(), api.getMapInfo()]);
+    this.info = info;
+    this.ui.setMapInfo(info.description, verdictText(info), comparisonText(info), stretchList(info));
     this.scans = scans;
     const owner = new Int32Array(scans.points.length >>> 1);
     for (let p = 0; p + 1 < scans.offsets.length; p++) owner.fill(p, scans.offsets[p], scans.offsets[p + 1]);
@@ -161,6 +166,7 @@ class App {
           this.poses = fetched.poses;
           this.view.setPoses(fetched.poses, this.constrained || new Uint8Array(0));
           this.refreshLoops();
+          this.refreshDoubtful();
           const t2 = performance.now();
           this.version = Math.max(this.version, fetched.version);
           this.wanted = Math.max(this.wanted, fetched.version);
@@ -412,6 +418,15 @@ class App {
     });
   }
 
+  // -- the front end's doubtful stretches ------------------------------------------------------
+
+  /** Places the doubtful stretches on the poses on screen (they move with the map). */
+  refreshDoubtful() {
+    if (!this.info || this.info.front_end_doubtful.length === 0) return;
+    this.placedDoubtful = placeStretches(this.info.front_end_doubtful, this.poses);
+    this.refreshLines();
+  }
+
   /** Rebuilds the overlay (lines and labels) from the corrections, the pair and the preview. */
   refreshLines() {
     const { under, over, labels } = overlay({
@@ -424,6 +439,8 @@ class App {
     });
     this.labels = labels;
     if (this.loops && this.loopsVisible) under.unshift(...loopLines(this.placedLoops, this.selectedLoop));
+    // Beneath everything else drawn: a band along the poses, not a line of the map.
+    if (this.placedDoubtful.length > 0) under.unshift(...stretchLines(this.placedDoubtful));
     this.view.setLines(under, over);
     this.requestRender();
   }

@@ -100,6 +100,28 @@ export class Ui {
     button.textContent = summary.selected !== null && summary.rejected ? "Reinstate" : "Reject";
   }
 
+  /**
+   * What the served map is: its poses in words (the map name's tooltip), the front end's verdict
+   * and a comparison with a bag's own SLAM trajectory in the status bar (null: not shown), and
+   * the doubtful stretches, one a line (the verdict's tooltip; "": none, no legend entry).
+   */
+  setMapInfo(description, verdict, comparison, stretches) {
+    $("map-name").title = description || "";
+    for (const [id, text] of [
+      ["st-verdict", verdict],
+      ["st-compare", comparison],
+    ]) {
+      const el = $(id);
+      if (el.dataset.title === undefined) el.dataset.title = el.title;
+      el.hidden = !text;
+      el.textContent = text || "";
+      el.title = text ? `${el.dataset.title}\n${text}` : el.dataset.title;
+    }
+    if (stretches) $("st-verdict").title += `\n${stretches}`;
+    $("st-verdict").classList.toggle("doubtful", Boolean(verdict) && Boolean(stretches));
+    $("legend-doubtful").hidden = !stretches;
+  }
+
   setLoopsVisible(visible) {
     $("btn-loops").classList.toggle("selected", visible);
     $("btn-loops").setAttribute("aria-pressed", String(visible));
