@@ -69,19 +69,10 @@ def run_slam(
     max_range: float = 20.0,
     loop_min_score: float = 0.55,
     dcs: float = 10.0,
-) -> tuple[
-    NDArray[np.float64],
-    NDArray[np.int64],
-    NDArray[np.float64],
-    NDArray[np.int64],
-    NDArray[np.float64],
-    NDArray[np.float64],
-    NDArray[np.float64],
-    NDArray[np.float64],
-    int,
-]:
-    """The scan-matching front end over a log: (poses, keyframes, step information, loop
-    closure pairs, their measurements, information, scores, robust weights, submaps)."""
+) -> dict[str, Any]:
+    """The scan-matching front end over a log: a dict of named arrays (poses, steps, keyframes,
+    step_information, loop_pairs, loop_measurements, loop_information, loop_scores,
+    loop_weights, loop_set_aside, doubtful, doubt) and the number of submaps."""
 
 @final
 class IterationRecord:

@@ -10,6 +10,7 @@ end got wrong, reject a loop closure it trusted, or reinstate one it rejected.
 
 from __future__ import annotations
 
+import enum
 import math
 import os
 import re
@@ -26,7 +27,7 @@ from hitl_slam.geometry import chain_steps
 from hitl_slam.loop_closures import effective_map, loop_closure_metadata
 from hitl_slam.map import InformationSource, Map
 
-__all__ = ["LoopClosures", "SlamResult", "slam"]
+__all__ = ["Doubtful", "LoopClosures", "SlamResult", "StepKind", "slam"]
 
 FloatArray = NDArray[np.float64]
 
@@ -39,22 +40,56 @@ _MIN_SCAN_PERIOD_S = 1e-3
 :attr:`SlamResult.real_time_factor`)."""
 
 
+class StepKind(enum.IntEnum):
+    """How the front end placed a scan (:attr:`SlamResult.steps`)."""
+
+    DIRECT = 0
+    """ICP against the local map from the odometry's prediction (and the first scan)."""
+    SEARCHED = 1
+    """The correlative search over the local window, refined by ICP."""
+    AMBIGUOUS = 2
+    """Two distinct poses explain the scan about as well: the odometry's step is kept."""
+    FAILED = 3
+    """No match (too few points, too low a score, a failed refinement): the odometry's step."""
+
+
+_DOUBTS = {0: "match failed", 1: "contradicts the loop closures"}
+
+
+@dataclass(frozen=True)
+class Doubtful:
+    """A stretch of the map the front end does not vouch for: scans ``first..last`` (0-based,
+    inclusive) and why: ``"match failed"`` (its scans could not be matched, or matched two
+    places equally well, over at least a keyframe's worth of motion: their poses are the
+    odometry's) or ``"contradicts the loop closures"`` (the final solve bends steps there far
+    from what the scans matched)."""
+
+    first: int
+    last: int
+    reason: str
+
+    def as_dict(self) -> dict[str, object]:
+        return {"first": self.first, "last": self.last, "reason": self.reason}
+
+
 @dataclass(frozen=True)
 class LoopClosures:
     """Every loop closure the front end found: scan pairs ``(L, 2)``, the matched relative pose
     of the second scan in the first's frame ``(L, 3)``, its information ``(L, 3, 3)``, the
-    correlative score (mean likelihood, 0..1) and the final solve's robust weight (1: fully
-    trusted; below :data:`REJECTED_WEIGHT`: rejected)."""
+    correlative score (mean likelihood, 0..1), the final solve's robust weight (1: fully
+    trusted; below :data:`REJECTED_WEIGHT`: rejected) and whether the group test set it aside
+    before any solve (inconsistent with the other closures found with it; weight 0)."""
 
     pairs: NDArray[np.int64]
     measurements: FloatArray
     information: FloatArray
     scores: FloatArray
     weights: FloatArray
+    set_aside: NDArray[np.bool_]
 
     @property
     def accepted(self) -> NDArray[np.bool_]:
-        return self.weights >= REJECTED_WEIGHT
+        return (self.weights >= REJECTED_WEIGHT) & ~self.set_aside
 
 
 @dataclass(frozen=True)
@@ -70,6 +105,19 @@ class SlamResult:
     submaps: int
     time_s: float
     duration_s: float | None  # [s] of data in the log (timestamps), if known
+    steps: NDArray[np.uint8]  # per scan, a StepKind
+    doubtful: tuple[Doubtful, ...]
+
+    @property
+    def verdict(self) -> str:
+        """``"good"``, or ``"doubtful"`` when a stretch is (:attr:`doubtful`)."""
+        return "doubtful" if self.doubtful else "good"
+
+    @property
+    def unmatched_steps(self) -> int:
+        """Scans the front end could not match (failed or ambiguous): their steps are the
+        odometry's."""
+        return int(np.count_nonzero(self.steps >= StepKind.AMBIGUOUS))
 
     def accepted_map(self) -> Map:
         """:attr:`map` without the loop closures the front end rejected (its edges: the matched
@@ -99,12 +147,33 @@ class SlamResult:
             speed = f"; the log's timestamps span {self.duration_s:.3g} s, too little to time it by"
         else:
             speed = ""
+        set_aside = int(loops.set_aside.sum())
+        failed = int(np.count_nonzero(self.steps == StepKind.FAILED))
+        ambiguous = int(np.count_nonzero(self.steps == StepKind.AMBIGUOUS))
+        if self.doubtful:
+            shown = ", ".join(
+                f"scans {d.first}-{d.last} ({d.reason})" for d in self.doubtful[:_SHOWN]
+            )
+            more = len(self.doubtful) - _SHOWN
+            verdict = (
+                f"DOUBTFUL map, {len(self.doubtful)} stretch"
+                f"{'es' if len(self.doubtful) > 1 else ''}: {shown}"
+                + (f" and {more} more" if more > 0 else "")
+                + "; look there first"
+            )
+        else:
+            verdict = "good map"
         return (
-            f"{self.map.num_poses} scans, {self.keyframes.size} keyframes, {self.submaps} "
-            f"submaps; loop closures: {accepted} accepted, {loops.pairs.shape[0] - accepted} "
-            f"rejected; {self.time_s:.1f} s ({self.map.num_poses / max(self.time_s, 1e-9):.0f} "
-            f"scans/s{speed})"
+            f"{verdict}; {self.map.num_poses} scans ({failed} unmatched, {ambiguous} ambiguous), "
+            f"{self.keyframes.size} keyframes, {self.submaps} submaps; loop closures: "
+            f"{accepted} accepted, {loops.pairs.shape[0] - accepted - set_aside} rejected, "
+            f"{set_aside} set aside as inconsistent; {self.time_s:.1f} s "
+            f"({self.map.num_poses / max(self.time_s, 1e-9):.0f} scans/s{speed})"
         )
+
+
+_SHOWN = 3
+"""Doubtful stretches named in the summary line (all are in :attr:`SlamResult.doubtful`)."""
 
 
 def _scan_place(raw: Map, message: str) -> str:
@@ -160,7 +229,7 @@ def slam(
 
     t0 = time.perf_counter()
     try:
-        poses, keyframes, step_info, pairs, z, info, scores, weights, submaps = _core.run_slam(
+        out = _core.run_slam(
             raw.points,
             raw.offsets,
             raw.poses,
@@ -176,7 +245,14 @@ def slam(
         # line of the scan named first) is said here.
         raise InputError(f"{_scan_place(raw, str(exc))}: {exc}") from None
     elapsed = time.perf_counter() - t0
-    loops = LoopClosures(pairs, z, info, scores, weights)
+    poses, step_info = out["poses"], out["step_information"]
+    pairs, z, info = out["loop_pairs"], out["loop_measurements"], out["loop_information"]
+    scores, weights = out["loop_scores"], out["loop_weights"]
+    loops = LoopClosures(pairs, z, info, scores, weights, out["loop_set_aside"])
+    doubtful = tuple(
+        Doubtful(int(a), int(b), _DOUBTS[int(why)])
+        for (a, b), why in zip(out["doubtful"], out["doubt"], strict=True)
+    )
     chain = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1).astype(np.int64)
     edges = np.concatenate([chain, pairs]).astype(np.int64)
     measurements = np.concatenate([chain_steps(poses), z])
@@ -188,6 +264,8 @@ def slam(
         )
     metadata = dict(raw.metadata)
     metadata["front_end"] = "hitl-slam"
+    metadata["front_end_verdict"] = "doubtful" if doubtful else "good"
+    metadata["front_end_doubtful"] = [d.as_dict() for d in doubtful]
     metadata.update(
         loop_closure_metadata(
             np.arange(n - 1, n - 1 + pairs.shape[0], dtype=np.int64),
@@ -214,4 +292,13 @@ def slam(
     duration = None
     if raw.timestamps is not None and n > 1:
         duration = float(raw.timestamps[-1] - raw.timestamps[0])
-    return SlamResult(built, keyframes, loops, int(submaps), elapsed, duration)
+    return SlamResult(
+        built,
+        out["keyframes"],
+        loops,
+        int(out["submaps"]),
+        elapsed,
+        duration,
+        out["steps"],
+        doubtful,
+    )

@@ -43,6 +43,33 @@ fn bound(grid: &LikelihoodGrid, r: &Rotation, dx: i64, dy: i64, level: usize) ->
     sum / r.cells.len().max(1) as f64
 }
 
+/// The best match and, when asked for, the best one at a distinct pose (the runner-up).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ranked {
+    pub best: Found,
+    /// The best pose farther than the distinct window from `best` scoring at least the asked
+    /// share of its score: a second explanation of the scan, so the match is ambiguous.
+    pub runner_up: Option<Found>,
+}
+
+/// Leaves within `cells` translation cells and `rotations` rotation steps of a pose are skipped.
+#[derive(Clone, Copy)]
+struct Exclusion {
+    rotation: usize,
+    dx: i64,
+    dy: i64,
+    cells: i64,
+    rotations: usize,
+}
+
+impl Exclusion {
+    fn covers(&self, rotation: usize, dx: i64, dy: i64) -> bool {
+        rotation.abs_diff(self.rotation) <= self.rotations
+            && (dx - self.dx).abs() <= self.cells
+            && (dy - self.dy).abs() <= self.cells
+    }
+}
+
 /// The pose of `scan` (robot-frame points) in the grid's frame within `window` of `guess` with
 /// the highest score, if any scores above `min_score`.
 pub fn search(
@@ -52,6 +79,20 @@ pub fn search(
     window: Window,
     min_score: f64,
 ) -> Option<Found> {
+    search_ranked(grid, scan, guess, window, min_score, None).map(|r| r.best)
+}
+
+/// [`search`], and with `distinct = Some((d, ratio))` also the best pose outside the window `d`
+/// around the best that scores at least `ratio` times the best (a second branch and bound
+/// whose floor is that share, so it prunes most of the window at once).
+pub fn search_ranked(
+    grid: &LikelihoodGrid,
+    scan: &[Point],
+    guess: [f64; 3],
+    window: Window,
+    min_score: f64,
+    distinct: Option<(Window, f64)>,
+) -> Option<Ranked> {
     if scan.is_empty() || grid.depth() == usize::MAX {
         return None;
     }
@@ -105,16 +146,33 @@ pub fn search(
     }
     // (score, rotation, dx, dy) of the best leaf so far; the floor is `min_score`.
     let mut best = (min_score, usize::MAX, 0i64, 0i64);
-    branch(grid, &rotations, start, w, &mut best);
-    let (score, ri, dx, dy) = best;
-    let r = rotations.get(ri)?;
-    Some(Found {
-        pose: [
-            guess[0] + dx as f64 * res,
-            guess[1] + dy as f64 * res,
-            crate::se2::wrap_angle(r.theta),
-        ],
-        score,
+    branch(grid, &rotations, start.clone(), w, None, &mut best);
+    let found = |(score, ri, dx, dy): (f64, usize, i64, i64)| {
+        rotations.get(ri).map(|r: &Rotation| Found {
+            pose: [
+                guess[0] + dx as f64 * res,
+                guess[1] + dy as f64 * res,
+                crate::se2::wrap_angle(r.theta),
+            ],
+            score,
+        })
+    };
+    let top_found = found(best)?;
+    let runner_up = distinct.and_then(|(d, ratio)| {
+        let exclusion = Exclusion {
+            rotation: best.1,
+            dx: best.2,
+            dy: best.3,
+            cells: (d.linear / res).floor() as i64,
+            rotations: (d.angular / step).floor() as usize,
+        };
+        let mut second = ((ratio * best.0).max(min_score), usize::MAX, 0i64, 0i64);
+        branch(grid, &rotations, start, w, Some(&exclusion), &mut second);
+        found(second)
+    });
+    Some(Ranked {
+        best: top_found,
+        runner_up,
     })
 }
 
@@ -123,6 +181,7 @@ fn branch(
     rotations: &[Rotation],
     mut candidates: Vec<Candidate>,
     w: i64,
+    exclusion: Option<&Exclusion>,
     best: &mut (f64, usize, i64, i64),
 ) {
     candidates.sort_by(|a, b| b.bound.total_cmp(&a.bound));
@@ -132,7 +191,9 @@ fn branch(
         }
         if c.level == 0 {
             // At the fine level the bound is the score itself.
-            *best = (c.bound, c.rotation, c.dx, c.dy);
+            if !exclusion.is_some_and(|e| e.covers(c.rotation, c.dx, c.dy)) {
+                *best = (c.bound, c.rotation, c.dx, c.dy);
+            }
             continue;
         }
         let half = 1i64 << (c.level - 1);
@@ -151,7 +212,7 @@ fn branch(
                 bound: bound(grid, r, dx, dy, c.level - 1),
             });
         }
-        branch(grid, rotations, children, w, best);
+        branch(grid, rotations, children, w, exclusion, best);
     }
 }
 
@@ -230,5 +291,49 @@ mod tests {
         );
         // Nothing above an impossible floor.
         assert!(search(&grid, &scan, guess, window, 1.01).is_none());
+    }
+
+    #[test]
+    fn a_corridor_has_a_runner_up_along_it_and_a_room_corner_none() {
+        let window = Window {
+            linear: 0.8,
+            angular: 0.15,
+        };
+        let distinct = Window {
+            linear: 0.3,
+            angular: 5f64.to_radians(),
+        };
+        // Two long parallel walls: shifted along them, the scan fits as well.
+        let corridor: Vec<Point> = (0..400)
+            .flat_map(|k| {
+                let x = -10.0 + 0.05 * k as f64;
+                [[x, 1.0], [x, -1.0]]
+            })
+            .collect();
+        let grid = LikelihoodGrid::new(&corridor, 0.05, 0.05, 3).unwrap();
+        let scan: Vec<Point> = corridor
+            .iter()
+            .filter(|p| p[0].abs() < 4.0)
+            .step_by(2)
+            .copied()
+            .collect();
+        let ranked =
+            search_ranked(&grid, &scan, [0.0; 3], window, 0.3, Some((distinct, 0.9))).unwrap();
+        let runner_up = ranked
+            .runner_up
+            .expect("the corridor is ambiguous along its axis");
+        assert!(runner_up.score >= 0.9 * ranked.best.score);
+        assert!((runner_up.pose[0] - ranked.best.pose[0]).abs() > distinct.linear);
+        // The room corner with its box: one pose only.
+        let map = room();
+        let grid = LikelihoodGrid::new(&map, 0.05, 0.05, 3).unwrap();
+        let scan: Vec<Point> = map.iter().step_by(3).copied().collect();
+        let ranked =
+            search_ranked(&grid, &scan, [0.0; 3], window, 0.3, Some((distinct, 0.9))).unwrap();
+        assert!(ranked.runner_up.is_none(), "{ranked:?}");
+        assert!(
+            ranked.best.pose[0].abs() <= 0.06 && ranked.best.pose[1].abs() <= 0.06,
+            "{ranked:?}"
+        );
     }
 }

@@ -82,6 +82,28 @@ impl ScanMatch {
     }
 }
 
+/// The normal of the line through the neighbours of `p` within `radius`, if they form one.
+fn normal_at(tree: &KdTree<([f64; 2], usize)>, p: &[f64; 2], radius: f64) -> Option<[f64; 2]> {
+    let near: Vec<[f64; 2]> = tree
+        .within_radius(p, radius)
+        .into_iter()
+        .map(|e| e.0)
+        .collect();
+    if near.len() < 3 {
+        return None;
+    }
+    let (_, scatter) = weighted_scatter(&near, &vec![1.0; near.len()])?;
+    // Eigenvalues of the 2x2 scatter: a line when the minor one is small.
+    let [sxx, sxy, syy] = scatter;
+    let half_trace = 0.5 * (sxx + syy);
+    let root = (0.25 * (sxx - syy).powi(2) + sxy * sxy).sqrt();
+    let (major, minor) = (half_trace + root, half_trace - root);
+    if major <= 0.0 || minor > 0.05 * major {
+        return None; // a corner or a blob, not a line
+    }
+    principal_normal(scatter)
+}
+
 /// A reference scan ready for matching: its points in an R*-tree, with a unit normal where its
 /// neighbourhood is a line.
 pub struct Reference {
@@ -92,38 +114,34 @@ pub struct Reference {
 }
 
 impl Reference {
+    /// Every point's normal from its neighbours within `radius`.
     pub fn new(points: &[[f64; 2]], radius: f64) -> Self {
+        Self::with_normals(points, &[], radius)
+    }
+
+    /// The first `known.len()` points take their normals from `known` (computed earlier, e.g.
+    /// when their scan joined the map); the others get theirs from their neighbours within
+    /// `radius` among all the points.
+    pub fn with_normals(points: &[[f64; 2]], known: &[Option<[f64; 2]>], radius: f64) -> Self {
         let tree = KdTree::build_by_ordered_float(
             points.iter().enumerate().map(|(i, p)| (*p, i)).collect(),
         );
-        let normals = points
-            .iter()
-            .map(|p| {
-                let near: Vec<[f64; 2]> = tree
-                    .within_radius(p, radius)
-                    .into_iter()
-                    .map(|e| e.0)
-                    .collect();
-                if near.len() < 3 {
-                    return None;
-                }
-                let (_, scatter) = weighted_scatter(&near, &vec![1.0; near.len()])?;
-                // Eigenvalues of the 2x2 scatter: a line when the minor one is small.
-                let [sxx, sxy, syy] = scatter;
-                let half_trace = 0.5 * (sxx + syy);
-                let root = (0.25 * (sxx - syy).powi(2) + sxy * sxy).sqrt();
-                let (major, minor) = (half_trace + root, half_trace - root);
-                if major <= 0.0 || minor > 0.05 * major {
-                    return None; // a corner or a blob, not a line
-                }
-                principal_normal(scatter)
-            })
-            .collect();
+        let mut normals = known[..known.len().min(points.len())].to_vec();
+        normals.extend(
+            points[normals.len()..]
+                .iter()
+                .map(|p| normal_at(&tree, p, radius)),
+        );
         Self {
             tree,
             points: points.to_vec(),
             normals,
         }
+    }
+
+    /// The unit normals of the points (None where the neighbourhood is not a line).
+    pub fn normals(&self) -> &[Option<[f64; 2]>] {
+        &self.normals
     }
 
     /// The nearest reference point to `q` and its squared distance.

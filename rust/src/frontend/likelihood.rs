@@ -57,16 +57,7 @@ impl LikelihoodGrid {
         sigma: f64,
         depth: usize,
     ) -> Result<Self, GridTooLarge> {
-        let reach = 3.0 * sigma;
-        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        for p in points
-            .iter()
-            .filter(|p| p[0].is_finite() && p[1].is_finite())
-        {
-            lo = [lo[0].min(p[0]), lo[1].min(p[1])];
-            hi = [hi[0].max(p[0]), hi[1].max(p[1])];
-        }
-        if lo[0] > hi[0] || lo[0].is_nan() {
+        let Some((origin, nx, ny)) = Self::check_size(points, resolution, sigma, depth)? else {
             return Ok(Self {
                 origin: [0.0; 2],
                 resolution,
@@ -74,25 +65,8 @@ impl LikelihoodGrid {
                 ny: 0,
                 levels: vec![Vec::new(); depth + 1],
             });
-        }
-        // Padding of 2^depth cells: a coarse block that starts left of (or below) the grid then
-        // covers only empty cells, so reading 0 there is exact.
-        let pad = reach + resolution * (1.0 + 2f64.powi(depth.min(62) as i32));
-        let origin = [lo[0] - pad, lo[1] - pad];
-        // Sized in floating point first: an extent too large for usize (or inf - inf = NaN)
-        // must fail the check, not wrap or saturate into an allocation.
-        let (width, height) = (hi[0] - lo[0], hi[1] - lo[1]);
-        let fx = ((width + 2.0 * pad) / resolution).ceil() + 1.0;
-        let fy = ((height + 2.0 * pad) / resolution).ceil() + 1.0;
-        if (fx * fy).is_nan() || fx * fy > MAX_CELLS as f64 {
-            return Err(GridTooLarge {
-                width,
-                height,
-                resolution,
-                cells: fx * fy,
-            });
-        }
-        let (nx, ny) = (fx as usize, fy as usize);
+        };
+        let reach = 3.0 * sigma;
         let mut fine = vec![0f32; nx * ny];
         let r = (reach / resolution).ceil() as i64;
         let inv = 1.0 / (2.0 * sigma * sigma);
@@ -156,6 +130,47 @@ impl LikelihoodGrid {
             ny,
             levels,
         })
+    }
+
+    /// The grid's origin and size for these settings (None for no finite point), or why it
+    /// would be too large: checked before anything is allocated.
+    #[allow(clippy::type_complexity)]
+    pub fn check_size(
+        points: &[Point],
+        resolution: f64,
+        sigma: f64,
+        depth: usize,
+    ) -> Result<Option<(Point, usize, usize)>, GridTooLarge> {
+        let reach = 3.0 * sigma;
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for p in points
+            .iter()
+            .filter(|p| p[0].is_finite() && p[1].is_finite())
+        {
+            lo = [lo[0].min(p[0]), lo[1].min(p[1])];
+            hi = [hi[0].max(p[0]), hi[1].max(p[1])];
+        }
+        if lo[0] > hi[0] || lo[0].is_nan() {
+            return Ok(None);
+        }
+        // Padding of 2^depth cells: a coarse block that starts left of (or below) the grid then
+        // covers only empty cells, so reading 0 there is exact.
+        let pad = reach + resolution * (1.0 + 2f64.powi(depth.min(62) as i32));
+        let origin = [lo[0] - pad, lo[1] - pad];
+        // Sized in floating point first: an extent too large for usize (or inf - inf = NaN)
+        // must fail the check, not wrap or saturate into an allocation.
+        let (width, height) = (hi[0] - lo[0], hi[1] - lo[1]);
+        let fx = ((width + 2.0 * pad) / resolution).ceil() + 1.0;
+        let fy = ((height + 2.0 * pad) / resolution).ceil() + 1.0;
+        if (fx * fy).is_nan() || fx * fy > MAX_CELLS as f64 {
+            return Err(GridTooLarge {
+                width,
+                height,
+                resolution,
+                cells: fx * fy,
+            });
+        }
+        Ok(Some((origin, fx as usize, fy as usize)))
     }
 
     pub fn resolution(&self) -> f64 {

@@ -2,6 +2,7 @@
 //! odometry step against the two scans it joins (the evidence that puts a correction's error at
 //! a heading fault instead of spreading it over a lap).
 
+pub mod consistency;
 pub mod correlative;
 pub mod icp;
 pub mod likelihood;

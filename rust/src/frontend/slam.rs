@@ -19,7 +19,8 @@
 
 use nalgebra::Matrix3;
 
-use super::correlative::{search, Window};
+use super::consistency::{largest_consistent_set, Cycle, Gate};
+use super::correlative::{search, search_ranked, Window};
 use super::icp::{IcpParams, Reference};
 use super::likelihood::{GridTooLarge, LikelihoodGrid, Point};
 use crate::error::{input, HitlError, Result};
@@ -28,6 +29,16 @@ use crate::graph::FactorGraph;
 use crate::se2::Pose2;
 use crate::solver::{optimize, Kernel, RobustKernels, SolverParams};
 use crate::values::Values;
+
+/// How a search window grows with the odometry's motion since the last matched scan:
+/// `linear_per_m` [m/m] of its distance, `angular_per_rad` [rad/rad] of its turn plus
+/// `angular_per_m` [rad/m] of its distance.
+#[derive(Clone, Copy, Debug)]
+pub struct Growth {
+    pub linear_per_m: f64,
+    pub angular_per_rad: f64,
+    pub angular_per_m: f64,
+}
 
 /// The front end's settings. Lengths in metres, angles in radians.
 #[derive(Clone, Debug)]
@@ -45,13 +56,33 @@ pub struct SlamParams {
     pub direct_overlap: f64,
     pub local_keyframes: usize,
     pub local_resolution: f64,
+    /// The local search window for a scan whose odometry did not move ...
     pub local_window: Window,
+    /// ... grown with the odometry's motion since the last matched scan ...
+    pub local_growth: Growth,
+    /// ... up to this.
+    pub local_max_window: Window,
+    /// A local match needs this correlative score (mean likelihood of its points).
+    pub local_min_score: f64,
+    /// A match is ambiguous when a pose outside `distinct` of the best scores at least
+    /// `ambiguity` times the best: the step then keeps the odometry.
+    pub ambiguity: f64,
+    pub distinct: Window,
+    /// Scans that could not be matched do not become keyframes until the odometry moved this
+    /// far (or turned this much) from the last keyframe; the local map then starts again from
+    /// that scan (the robot is lost in it).
+    pub lost_distance: f64,
+    pub lost_angle: f64,
     pub submap_keyframes: usize,
     pub loop_resolution: f64,
     pub loop_window: Window,
-    /// The loop window grows by this fraction of the distance travelled since the submap.
+    /// The loop window grows by these fractions of the distance travelled since the submap
+    /// (linear [m/m], angular [rad/m]) ...
     pub loop_growth: f64,
+    pub loop_angular_growth: f64,
+    /// ... up to these.
     pub loop_max_linear: f64,
+    pub loop_max_angular: f64,
     /// A submap is searched when the keyframe's estimate is within the window plus this of the
     /// path the submap was built along.
     pub loop_reach: f64,
@@ -63,6 +94,11 @@ pub struct SlamParams {
     pub optimize_every: usize,
     /// DCS's Phi on loop closures (chi2 units).
     pub dcs: f64,
+    /// The group test's gate on the cycle two loop closures close.
+    pub consistency: Gate,
+    /// The final solve contradicts a matched step between keyframes when it moves it by more
+    /// than this ([m], [rad]) from its match.
+    pub contradiction: [f64; 2],
 }
 
 impl Default for SlamParams {
@@ -80,6 +116,23 @@ impl Default for SlamParams {
                 linear: 0.25,
                 angular: 8f64.to_radians(),
             },
+            local_growth: Growth {
+                linear_per_m: 0.25,
+                angular_per_rad: 0.25,
+                angular_per_m: 3f64.to_radians(),
+            },
+            local_max_window: Window {
+                linear: 1.5,
+                angular: 45f64.to_radians(),
+            },
+            local_min_score: 0.3,
+            ambiguity: 0.9,
+            distinct: Window {
+                linear: 0.3,
+                angular: 5f64.to_radians(),
+            },
+            lost_distance: 1.0,
+            lost_angle: 45f64.to_radians(),
             submap_keyframes: 25,
             loop_resolution: 0.1,
             loop_window: Window {
@@ -87,13 +140,23 @@ impl Default for SlamParams {
                 angular: 20f64.to_radians(),
             },
             loop_growth: 0.05,
+            loop_angular_growth: 0.2f64.to_radians(),
             loop_max_linear: 5.0,
+            loop_max_angular: 45f64.to_radians(),
             loop_reach: 2.0,
             loop_min_score: 0.55,
             loop_every: 3,
             loop_min_overlap: 0.6,
             optimize_every: 25,
             dcs: 10.0,
+            consistency: Gate {
+                reach: 10.0,
+                linear: 0.2,
+                linear_per_m: 0.03,
+                angular: 2f64.to_radians(),
+                angular_per_m: 0.3f64.to_radians(),
+            },
+            contradiction: [0.1, 2f64.to_radians()],
         }
     }
 }
@@ -118,9 +181,74 @@ impl SlamParams {
         }
         Ok(())
     }
+
+    /// The local window after the odometry moved `since` (distance [m], turn [rad]) since the
+    /// last matched scan.
+    fn local_window_after(&self, since: Motion) -> Window {
+        let g = self.local_growth;
+        Window {
+            linear: (self.local_window.linear + g.linear_per_m * since.distance)
+                .min(self.local_max_window.linear),
+            angular: (self.local_window.angular
+                + g.angular_per_rad * since.turn
+                + g.angular_per_m * since.distance)
+                .min(self.local_max_window.angular),
+        }
+    }
 }
 
-/// A loop closure found by the search: keyframe scan `from` (a submap's first) to scan `to`.
+/// How a scan's pose was found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Step {
+    /// ICP from the odometry's prediction (or the first scan).
+    Direct = 0,
+    /// The correlative search over the local window, refined by ICP.
+    Searched = 1,
+    /// The search found two distinct poses that explain the scan about as well: ICP from the
+    /// odometry's prediction (the one nearest the odometry).
+    Ambiguous = 2,
+    /// No match (too few points, too low a score, or the refinement failed): the odometry.
+    Failed = 3,
+}
+
+impl Step {
+    pub fn matched(self) -> bool {
+        !matches!(self, Step::Failed)
+    }
+}
+
+/// Why a stretch of the map is doubtful.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Doubt {
+    /// Scans could not be matched over a keyframe's worth of motion or more: their poses are
+    /// the odometry's.
+    Unmatched = 0,
+    /// The final solve bends steps between keyframes far from their matches: the loop
+    /// closures and the local matches disagree.
+    Contradicted = 1,
+}
+
+/// A doubtful stretch: scans `first..=last`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Doubtful {
+    pub first: usize,
+    pub last: usize,
+    pub why: Doubt,
+}
+
+/// What became of a loop closure candidate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum LoopStatus {
+    /// In the graph (its final weight says how far the solve trusted it).
+    Solved = 0,
+    /// Set aside before any solve: inconsistent with the other closures of its group.
+    Inconsistent = 1,
+}
+
+/// A loop closure found by the search: keyframe `from` (a submap's first) to keyframe `to`.
 #[derive(Clone, Debug)]
 pub struct LoopClosure {
     pub from: usize,
@@ -128,8 +256,10 @@ pub struct LoopClosure {
     pub measurement: Pose2,
     pub information: [[f64; 3]; 3],
     pub score: f64,
-    /// The final solve's robust weight (1 = fully trusted); below 0.5 it counts as rejected.
+    /// The final solve's robust weight (1 = fully trusted); below 0.5 it counts as rejected; 0
+    /// for a closure set aside.
     pub weight: f64,
+    pub status: LoopStatus,
 }
 
 /// The front end's answer.
@@ -137,18 +267,36 @@ pub struct LoopClosure {
 pub struct SlamResult {
     /// One per scan.
     pub poses: Vec<Pose2>,
+    /// How each scan was matched.
+    pub steps: Vec<Step>,
     /// Scan index of each keyframe.
     pub keyframes: Vec<usize>,
     /// Per scan k >= 1: the information of the step k-1 -> k (from its match's covariance).
     pub step_information: Vec<[[f64; 3]; 3]>,
     pub loops: Vec<LoopClosure>,
+    pub doubtful: Vec<Doubtful>,
     pub submaps: usize,
+}
+
+/// Odometry motion accumulated since some scan.
+#[derive(Clone, Copy, Debug, Default)]
+struct Motion {
+    distance: f64,
+    turn: f64,
+}
+
+impl Motion {
+    fn add(&mut self, step: Pose2) {
+        self.distance += step.translation_len();
+        self.turn += step.theta.abs();
+    }
 }
 
 struct Submap {
     /// Keyframe index of its first keyframe (the frame of `points`).
     origin: usize,
     points: Vec<Point>,
+    normals: Vec<Option<[f64; 2]>>,
     grid: LikelihoodGrid,
     reference: Option<Reference>,
     /// Its keyframes' positions in its frame.
@@ -160,6 +308,16 @@ struct Keyframe {
     pose: Pose2,
     /// Path length travelled up to this keyframe.
     travelled: f64,
+    /// Its scan's normals in its own frame, taken when it joined the local map.
+    normals: Vec<Option<[f64; 2]>>,
+}
+
+/// The local map: the last keyframes' points in the world at their current estimates, ready
+/// for ICP; its likelihood grid is built only when a scan needs the correlative search.
+struct LocalMap {
+    reference: Reference,
+    points: Vec<Point>,
+    grid: Option<LikelihoodGrid>,
 }
 
 fn information_of(cov: &[[f64; 3]; 3], fallback: [f64; 3]) -> [[f64; 3]; 3] {
@@ -184,6 +342,15 @@ fn diagonal(sigmas: [f64; 3]) -> [[f64; 3]; 3] {
         o[i][i] = 1.0 / (sigmas[i] * sigmas[i]);
     }
     o
+}
+
+/// The information of an unmatched motion: the odometry's, loose enough that loop closures
+/// and later matches correct it (5 cm + 20% of the distance; 2 deg + 20% of the turn + 2 deg
+/// per metre).
+fn odometry_information(m: Motion) -> [[f64; 3]; 3] {
+    let t = 0.05 + 0.2 * m.distance;
+    let r = 2f64.to_radians() + 0.2 * m.turn + 2f64.to_radians() * m.distance;
+    diagonal([t, t, r])
 }
 
 fn subsample(points: &[Point], n: usize) -> Vec<Point> {
@@ -220,6 +387,10 @@ impl Length for Pose2 {
     fn translation_len(self) -> f64 {
         self.x.hypot(self.y)
     }
+}
+
+fn within(p: Pose2, w: Window) -> bool {
+    p.translation_len() <= w.linear && p.theta.abs() <= w.angular
 }
 
 /// Runs the front end over `scans` (robot-frame points per scan) with their `odometry` poses
@@ -264,69 +435,72 @@ pub fn run(
     let fallback = [0.1, 0.1, 2f64.to_radians()];
 
     let mut poses = vec![Pose2::IDENTITY; n];
+    let mut steps = vec![Step::Direct; n];
     // Per scan: (keyframe index, offset from it) for non-keyframes.
     let mut riders: Vec<(usize, Pose2)> = vec![(0, Pose2::IDENTITY); n];
     let mut step_information = vec![diagonal(fallback); n];
     let mut keyframes: Vec<Keyframe> = Vec::new();
     let mut kf_edges: Vec<(usize, usize, Pose2, [[f64; 3]; 3])> = Vec::new();
+    // Which keyframe edges are matched (the keyframe's own scan was matched).
+    let mut kf_edge_matched: Vec<bool> = Vec::new();
     let mut loops: Vec<LoopClosure> = Vec::new();
+    let mut groups = Groups::default();
     let mut submaps: Vec<Submap> = Vec::new();
-    let mut local: Option<(LikelihoodGrid, Reference)> = None;
-    let mut closures_pending = 0usize;
+    let mut local: Option<LocalMap> = None;
+    // The local map holds keyframes from this one on (it starts again where the robot was lost).
+    let mut local_first = 0usize;
     let mut since_optimize = 0usize;
     let mut travelled = 0.0;
+    // The odometry's motion since the last matched scan, and since the last keyframe.
+    let mut since_match = Motion::default();
+    let mut since_keyframe = Motion::default();
 
     for k in 0..n {
+        let odo_step = if k == 0 {
+            Pose2::IDENTITY
+        } else {
+            odometry[k - 1].between(odometry[k])
+        };
         let predicted = if k == 0 {
             odometry[0]
         } else {
-            poses[k - 1].compose(odometry[k - 1].between(odometry[k]))
+            poses[k - 1].compose(odo_step)
         };
-        if k > 0 {
-            travelled += odometry[k - 1].between(odometry[k]).translation_len();
-        }
+        travelled += odo_step.translation_len();
+        since_match.add(odo_step);
+        since_keyframe.add(odo_step);
         let scan = &scans[k];
         let mut pose = predicted;
-        let mut info = diagonal(fallback);
-        if let Some((grid, reference)) = &local {
+        let mut info = odometry_information(since_match);
+        let mut step = if k == 0 { Step::Direct } else { Step::Failed };
+        if let Some(map) = local.as_mut() {
             if scan.len() >= 10 {
-                // ICP from the odometry's prediction first; the correlative search (the
-                // expensive, robust start) only where that does not match well.
-                let direct = reference.icp(scan, to_array(predicted), &icp);
-                let moved = predicted.between(Pose2::from_array(direct.pose));
-                let (start, refined) = if direct.ok
-                    && direct.overlap >= params.direct_overlap
-                    && moved.translation_len() <= 0.5 * params.local_window.linear
-                    && moved.theta.abs() <= 0.5 * params.local_window.angular
-                {
-                    (to_array(predicted), direct)
-                } else {
-                    let sparse = search_points(scan, params);
-                    let start =
-                        search(grid, &sparse, to_array(predicted), params.local_window, 0.1)
-                            .map_or(to_array(predicted), |f| f.pose);
-                    (start, reference.icp(scan, start, &icp))
-                };
-                let moved = Pose2::from_array(start).between(Pose2::from_array(refined.pose));
-                if refined.ok
-                    && moved.translation_len() <= params.local_window.linear
-                    && moved.theta.abs() <= params.local_window.angular
-                {
-                    pose = Pose2::from_array(refined.pose);
-                    info = information_of(&refined.covariance, fallback);
-                } else {
-                    pose = Pose2::from_array(start);
+                let window = params.local_window_after(since_match);
+                let (found, how) = match_local(map, scan, predicted, window, params, &icp)?;
+                step = how;
+                if let Some((p, cov)) = found {
+                    pose = p;
+                    info = information_of(&cov, fallback);
                 }
             }
         }
+        if step.matched() {
+            since_match = Motion::default();
+        }
         poses[k] = pose;
+        steps[k] = step;
         step_information[k] = info;
         let new_keyframe = match keyframes.last() {
             None => true,
             Some(last) => {
                 let d = last.pose.between(pose);
-                d.translation_len() >= params.keyframe_distance
-                    || d.theta.abs() >= params.keyframe_angle
+                if step.matched() {
+                    d.translation_len() >= params.keyframe_distance
+                        || d.theta.abs() >= params.keyframe_angle
+                } else {
+                    since_keyframe.distance >= params.lost_distance
+                        || since_keyframe.turn >= params.lost_angle
+                }
             }
         };
         if !new_keyframe {
@@ -337,42 +511,53 @@ pub fn run(
         let kf = keyframes.len();
         if let Some(prev) = keyframes.last() {
             // The matched step from the previous keyframe: its information is that of the
-            // match (the local map is the previous keyframes' own points).
-            kf_edges.push((kf - 1, kf, prev.pose.between(pose), info));
+            // match (the local map is the previous keyframes' own points); an unmatched one
+            // carries the odometry's since that keyframe.
+            let edge_info = if step.matched() {
+                info
+            } else {
+                odometry_information(since_keyframe)
+            };
+            kf_edges.push((kf - 1, kf, prev.pose.between(pose), edge_info));
+            kf_edge_matched.push(step.matched());
         }
+        if !step.matched() && kf > 0 {
+            local_first = kf; // lost: the local map starts again from here
+        }
+        since_keyframe = Motion::default();
         keyframes.push(Keyframe {
             scan: k,
             pose,
             travelled,
+            normals: Vec::new(),
         });
         riders[k] = (kf, Pose2::IDENTITY);
         since_optimize += 1;
 
         // Loop closures against finished submaps near the estimate.
-        if kf % params.loop_every == 0 && scan.len() >= 10 {
+        if kf % params.loop_every == 0 && scan.len() >= 10 && step.matched() {
             let sparse = search_points(scan, params);
             for sm in submaps.iter_mut() {
-                let origin = &keyframes[sm.origin];
-                let since = (travelled - origin.travelled).max(0.0);
-                let linear = (params.loop_window.linear + params.loop_growth * since)
-                    .min(params.loop_max_linear);
                 if kf < sm.origin + 2 * params.submap_keyframes {
                     continue; // the last submaps: their match is the local map's, not a loop
                 }
+                let origin = &keyframes[sm.origin];
+                let since = (travelled - origin.travelled).max(0.0);
+                let window = Window {
+                    linear: (params.loop_window.linear + params.loop_growth * since)
+                        .min(params.loop_max_linear),
+                    angular: (params.loop_window.angular + params.loop_angular_growth * since)
+                        .min(params.loop_max_angular),
+                };
                 // Near the path the submap was built along (its keyframes' positions).
                 let here = origin.pose.between(pose).translation();
-                let near = sm
-                    .path
-                    .iter()
-                    .any(|q| (q[0] - here[0]).hypot(q[1] - here[1]) <= linear + params.loop_reach);
+                let near = sm.path.iter().any(|q| {
+                    (q[0] - here[0]).hypot(q[1] - here[1]) <= window.linear + params.loop_reach
+                });
                 if !near {
                     continue;
                 }
                 let guess = origin.pose.between(pose);
-                let window = Window {
-                    linear,
-                    angular: params.loop_window.angular,
-                };
                 let Some(found) = search(
                     &sm.grid,
                     &sparse,
@@ -382,9 +567,9 @@ pub fn run(
                 ) else {
                     continue;
                 };
-                let reference = sm
-                    .reference
-                    .get_or_insert_with(|| Reference::new(&sm.points, icp.normal_radius));
+                let reference = sm.reference.get_or_insert_with(|| {
+                    Reference::with_normals(&sm.points, &sm.normals, icp.normal_radius)
+                });
                 let refined = reference.icp(scan, found.pose, &icp);
                 let jump = Pose2::from_array(found.pose).between(Pose2::from_array(refined.pose));
                 if !(refined.ok
@@ -394,43 +579,87 @@ pub fn run(
                 {
                     continue;
                 }
-                loops.push(LoopClosure {
+                groups.pending.push(LoopClosure {
                     from: sm.origin,
                     to: kf,
                     measurement: Pose2::from_array(refined.pose),
                     information: information_of(&refined.covariance, fallback),
                     score: found.score,
                     weight: 1.0,
+                    status: LoopStatus::Solved,
                 });
-                closures_pending += 1;
             }
         }
 
-        if closures_pending > 0 && since_optimize >= params.optimize_every {
-            optimize_keyframes(&mut keyframes, &kf_edges, &mut loops, params)?;
-            closures_pending = 0;
+        if since_optimize >= params.optimize_every && !groups.pending.is_empty() {
+            if groups.test(&keyframes, &mut loops, params) {
+                optimize_keyframes(&mut keyframes, &kf_edges, &mut loops, params)?;
+                poses[k] = keyframes[kf].pose;
+            }
             since_optimize = 0;
-            poses[k] = keyframes[kf].pose;
         }
 
-        // The local map: the last keyframes' points in the world, at the current estimates.
-        let first = keyframes.len().saturating_sub(params.local_keyframes);
+        // The local map: the last keyframes' points in the world, at the current estimates;
+        // the new keyframe's normals are taken among them once, and kept in its frame.
+        let first = keyframes
+            .len()
+            .saturating_sub(params.local_keyframes)
+            .max(local_first);
         let mut pts = Vec::new();
-        for key in &keyframes[first..] {
+        let mut known = Vec::new();
+        for key in &keyframes[first..kf] {
+            let (c, s) = key.pose.cos_sin();
             pts.extend(scans[key.scan].iter().map(|p| key.pose.transform_point(*p)));
+            known.extend(
+                key.normals
+                    .iter()
+                    .map(|m| m.map(|v| [c * v[0] - s * v[1], s * v[0] + c * v[1]])),
+            );
         }
-        let grid = LikelihoodGrid::new(&pts, params.local_resolution, params.local_resolution, 3)
-            .map_err(|e| far_off(&keyframes[first..], n, "the local map", e))?;
-        local = Some((grid, Reference::new(&pts, icp.normal_radius)));
+        pts.extend(scans[k].iter().map(|p| pose.transform_point(*p)));
+        let reference = Reference::with_normals(&pts, &known, icp.normal_radius);
+        let (c, s) = pose.cos_sin();
+        keyframes[kf].normals = reference.normals()[known.len()..]
+            .iter()
+            .map(|m| m.map(|v| [c * v[0] + s * v[1], -s * v[0] + c * v[1]]))
+            .collect();
+        // Checked now, built when a scan needs it: a grid too large means a pose far off. The
+        // keyframe before is always in the check, also where the local map starts again: a
+        // jump too far for one grid is damaged data, not a place the robot got lost in.
+        let check_from = first.min(kf.saturating_sub(1));
+        let before: Vec<Point> = keyframes[check_from..first]
+            .iter()
+            .flat_map(|key| scans[key.scan].iter().map(|p| key.pose.transform_point(*p)))
+            .chain(
+                pts.iter()
+                    .copied()
+                    .take(if check_from < first { pts.len() } else { 0 }),
+            )
+            .collect();
+        let span = if check_from < first { &before } else { &pts };
+        LikelihoodGrid::check_size(span, params.local_resolution, params.local_resolution, 3)
+            .map_err(|e| far_off(&keyframes[check_from..], n, "the local map", e))?;
+        local = Some(LocalMap {
+            reference,
+            points: pts,
+            grid: None,
+        });
 
         // A submap is finished every `submap_keyframes` keyframes.
         if (kf + 1) % params.submap_keyframes == 0 {
             let origin = kf + 1 - params.submap_keyframes;
             let o = keyframes[origin].pose;
             let mut pts = Vec::new();
+            let mut normals = Vec::new();
             for key in &keyframes[origin..=kf] {
                 let rel = o.between(key.pose);
+                let (c, s) = rel.cos_sin();
                 pts.extend(scans[key.scan].iter().map(|p| rel.transform_point(*p)));
+                normals.extend(
+                    key.normals
+                        .iter()
+                        .map(|m| m.map(|v| [c * v[0] - s * v[1], s * v[0] + c * v[1]])),
+                );
             }
             let path = keyframes[origin..=kf]
                 .iter()
@@ -442,6 +671,7 @@ pub fn run(
                 origin,
                 grid,
                 points: pts,
+                normals,
                 reference: None,
                 path,
             });
@@ -450,21 +680,213 @@ pub fn run(
             progress(k);
         }
     }
-    if !loops.is_empty() {
+    groups.test(&keyframes, &mut loops, params);
+    if loops.iter().any(|l| l.status == LoopStatus::Solved) {
         optimize_keyframes(&mut keyframes, &kf_edges, &mut loops, params)?;
     }
     for k in 0..n {
         let (kf, offset) = riders[k];
         poses[k] = keyframes[kf].pose.compose(offset);
     }
+    let mut doubtful = unmatched_stretches(&steps, odometry, params);
+    doubtful.extend(contradicted_stretches(
+        &keyframes,
+        &kf_edges,
+        &kf_edge_matched,
+        params,
+    ));
+    doubtful.sort_by_key(|d| (d.first, d.last));
     progress(n);
     Ok(SlamResult {
         poses,
+        steps,
         keyframes: keyframes.iter().map(|k| k.scan).collect(),
         step_information,
         loops,
+        doubtful,
         submaps: submaps.len(),
     })
+}
+
+/// Matches `scan` against the local map from `predicted`: ICP from the prediction when it
+/// holds well inside the window, else the correlative search over the window (ambiguous when a
+/// distinct pose scores about as well), refined by ICP. The pose and covariance when matched.
+#[allow(clippy::type_complexity)]
+fn match_local(
+    map: &mut LocalMap,
+    scan: &[Point],
+    predicted: Pose2,
+    window: Window,
+    params: &SlamParams,
+    icp: &IcpParams,
+) -> Result<(Option<(Pose2, [[f64; 3]; 3])>, Step)> {
+    let direct = map.reference.icp(scan, to_array(predicted), icp);
+    let moved = predicted.between(Pose2::from_array(direct.pose));
+    let half = Window {
+        linear: 0.5 * window.linear,
+        angular: 0.5 * window.angular,
+    };
+    if direct.ok && direct.overlap >= params.direct_overlap && within(moved, half) {
+        return Ok((
+            Some((Pose2::from_array(direct.pose), direct.covariance)),
+            Step::Direct,
+        ));
+    }
+    if map.grid.is_none() {
+        let grid = LikelihoodGrid::new(
+            &map.points,
+            params.local_resolution,
+            params.local_resolution,
+            3,
+        )
+        .map_err(|e| HitlError::Input(format!("the local map of the front end: {e}")))?;
+        map.grid = Some(grid);
+    }
+    let grid = map.grid.as_ref().expect("built above");
+    let sparse = search_points(scan, params);
+    let Some(ranked) = search_ranked(
+        grid,
+        &sparse,
+        to_array(predicted),
+        window,
+        params.local_min_score,
+        Some((params.distinct, params.ambiguity)),
+    ) else {
+        return Ok((None, Step::Failed));
+    };
+    if ranked.runner_up.is_some() {
+        // Two places explain the scan: the one nearest the odometry (ICP from its
+        // prediction), with the covariance of the odometry's step, or the odometry itself.
+        return Ok(if direct.ok && within(moved, window) {
+            (
+                Some((Pose2::from_array(direct.pose), direct.covariance)),
+                Step::Ambiguous,
+            )
+        } else {
+            (None, Step::Failed)
+        });
+    }
+    let start = ranked.best.pose;
+    let refined = map.reference.icp(scan, start, icp);
+    let moved = Pose2::from_array(start).between(Pose2::from_array(refined.pose));
+    if refined.ok && within(moved, params.local_window) {
+        Ok((
+            Some((Pose2::from_array(refined.pose), refined.covariance)),
+            Step::Searched,
+        ))
+    } else {
+        // The search's own pose, known to its lattice: a cell and a rotation step.
+        let r = params.local_resolution;
+        let a = 2f64.to_radians();
+        let cov = [[r * r, 0.0, 0.0], [0.0, r * r, 0.0], [0.0, 0.0, a * a]];
+        Ok((Some((Pose2::from_array(start), cov)), Step::Searched))
+    }
+}
+
+/// Loop closure candidates waiting for the group test: those found since the last test.
+#[derive(Default)]
+struct Groups {
+    pending: Vec<LoopClosure>,
+}
+
+impl Groups {
+    /// The group test (module `consistency`) over the waiting candidates: when the largest
+    /// mutually consistent set has two or more, it joins `loops` and the candidates that
+    /// contradict it are set aside (in `loops`, weight 0, never solved); otherwise every
+    /// candidate joins and the solve's robust kernel weighs them. Whether any joined.
+    fn test(
+        &mut self,
+        keyframes: &[Keyframe],
+        loops: &mut Vec<LoopClosure>,
+        params: &SlamParams,
+    ) -> bool {
+        let all: Vec<LoopClosure> = std::mem::take(&mut self.pending);
+        if all.is_empty() {
+            return false;
+        }
+        let cycles: Vec<Cycle> = all
+            .iter()
+            .map(|l| Cycle {
+                from: keyframes[l.from].pose,
+                to: keyframes[l.to].pose,
+                from_travelled: keyframes[l.from].travelled,
+                to_travelled: keyframes[l.to].travelled,
+                measurement: l.measurement,
+            })
+            .collect();
+        let set = largest_consistent_set(&cycles, &params.consistency);
+        let mut joined = false;
+        for (i, mut l) in all.into_iter().enumerate() {
+            if set.len() < 2 || set.binary_search(&i).is_ok() {
+                joined = true;
+            } else {
+                l.status = LoopStatus::Inconsistent;
+                l.weight = 0.0;
+            }
+            loops.push(l);
+        }
+        joined
+    }
+}
+
+/// Runs of scans that could not be matched, over at least a keyframe's worth of odometry
+/// motion (a shorter run is re-anchored by the next match against the same local map).
+fn unmatched_stretches(steps: &[Step], odometry: &[Pose2], params: &SlamParams) -> Vec<Doubtful> {
+    let mut out = Vec::new();
+    let mut k = 1;
+    while k < steps.len() {
+        if steps[k].matched() {
+            k += 1;
+            continue;
+        }
+        let first = k;
+        let mut motion = Motion::default();
+        while k < steps.len() && !steps[k].matched() {
+            motion.add(odometry[k - 1].between(odometry[k]));
+            k += 1;
+        }
+        if motion.distance >= params.keyframe_distance || motion.turn >= params.keyframe_angle {
+            out.push(Doubtful {
+                first,
+                last: k - 1,
+                why: Doubt::Unmatched,
+            });
+        }
+    }
+    out
+}
+
+/// Stretches between keyframes whose matched step the final solve moved by more than
+/// `params.contradiction` (merged when adjacent).
+fn contradicted_stretches(
+    keyframes: &[Keyframe],
+    edges: &[(usize, usize, Pose2, [[f64; 3]; 3])],
+    matched: &[bool],
+    params: &SlamParams,
+) -> Vec<Doubtful> {
+    let mut out: Vec<Doubtful> = Vec::new();
+    for ((i, j, z, _), &m) in edges.iter().zip(matched) {
+        if !m {
+            continue;
+        }
+        let solved = keyframes[*i].pose.between(keyframes[*j].pose);
+        let r = z.between(solved);
+        if r.translation_len() <= params.contradiction[0]
+            && r.theta.abs() <= params.contradiction[1]
+        {
+            continue;
+        }
+        let (first, last) = (keyframes[*i].scan, keyframes[*j].scan);
+        match out.last_mut() {
+            Some(d) if d.last >= first => d.last = last,
+            _ => out.push(Doubtful {
+                first,
+                last,
+                why: Doubt::Contradicted,
+            }),
+        }
+    }
+    out
 }
 
 /// The error for a grid over `keys` (the last being the newest keyframe) that would be too
@@ -509,7 +931,11 @@ fn optimize_keyframes(
         z.push(to_array(*meas));
         info.push(*inf);
     }
-    for l in loops.iter() {
+    let solved: Vec<usize> = (0..loops.len())
+        .filter(|&i| loops[i].status == LoopStatus::Solved)
+        .collect();
+    for &i in &solved {
+        let l = &loops[i];
         edges.push((l.from, l.to));
         z.push(to_array(l.measurement));
         info.push(l.information);
@@ -526,8 +952,8 @@ fn optimize_keyframes(
         k.pose = p;
     }
     let first_loop = odometry.len();
-    for (l, w) in loops.iter_mut().zip(report.weights.iter().skip(first_loop)) {
-        l.weight = *w;
+    for (&i, w) in solved.iter().zip(report.weights.iter().skip(first_loop)) {
+        loops[i].weight = *w;
     }
     Ok(())
 }

@@ -4,9 +4,10 @@
 use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
 use super::{flat_rows, guarded, input_err, read_poses, to_py};
-use crate::frontend::slam::{run, SlamParams};
+use crate::frontend::slam::{run, LoopStatus, SlamParams};
 use crate::frontend::{match_chain, IcpParams};
 
 /// Matches every scan `k + 1` against scan `k` (robot-frame `points` `(P, 2)`, `offsets`
@@ -73,25 +74,17 @@ fn match_consecutive<'py>(
     ))
 }
 
-/// The front end's answer for Python: poses `(N, 3)`, keyframe scan indices `(K,)`, per-scan
-/// step information `(N, 3, 3)`, loop closures `(L, 2)` scan indices with their measurements
-/// `(L, 3)`, information `(L, 3, 3)`, scores `(L,)` and robust weights `(L,)`, and the number
-/// of submaps.
-type PySlam<'py> = (
-    Bound<'py, PyArray2<f64>>,
-    Bound<'py, PyArray1<i64>>,
-    Bound<'py, PyArray3<f64>>,
-    Bound<'py, PyArray2<i64>>,
-    Bound<'py, PyArray2<f64>>,
-    Bound<'py, PyArray3<f64>>,
-    Bound<'py, PyArray1<f64>>,
-    Bound<'py, PyArray1<f64>>,
-    usize,
-);
-
 /// Runs the scan-matching front end (`crate::frontend::slam`) over a log: robot-frame `points`
 /// `(P, 2)` by scan (`offsets` `(N + 1,)`) and the odometry `(N, 3)`. `progress(done)` (a
 /// callable, optional) is called every 500 scans. The GIL is released except for those calls.
+/// Returns a dict: `poses` `(N, 3)`, `steps` `(N,)` uint8 (0 ICP from the prediction, 1 the
+/// correlative search, 2 ambiguous, 3 failed: the last two keep the odometry), `keyframes`
+/// `(K,)` scan indices, `step_information` `(N, 3, 3)`, loop closures `loop_pairs` `(L, 2)`
+/// scan indices with `loop_measurements` `(L, 3)`, `loop_information` `(L, 3, 3)`,
+/// `loop_scores`, `loop_weights` (the final robust weight; 0 when set aside) and
+/// `loop_set_aside` (set aside by the group test),
+/// `doubtful` `(D, 2)` scan ranges (inclusive) with `doubt` `(D,)` uint8 (0 unmatched, 1
+/// contradicted by the final solve), and `submaps`.
 #[pyfunction]
 #[pyo3(signature = (
     points, offsets, odometry, *, progress = None, keyframe_distance = 0.2,
@@ -109,7 +102,7 @@ fn run_slam<'py>(
     max_range: f64,
     loop_min_score: f64,
     dcs: f64,
-) -> PyResult<PySlam<'py>> {
+) -> PyResult<Bound<'py, PyDict>> {
     let params = SlamParams {
         keyframe_distance,
         keyframe_angle: keyframe_angle_deg.to_radians(),
@@ -162,7 +155,9 @@ fn run_slam<'py>(
         .map_err(|e| to_py(py, e))?;
     let n = out.poses.len();
     let l = out.loops.len();
+    let d = out.doubtful.len();
     let poses = Array2::from_shape_fn((n, 3), |(i, j)| out.poses[i].to_array()[j]);
+    let steps = Array1::from_iter(out.steps.iter().map(|&s| s as u8));
     let keyframes = Array1::from_iter(out.keyframes.iter().map(|&k| k as i64));
     let step = Array3::from_shape_fn((n, 3, 3), |(i, a, b)| out.step_information[i][a][b]);
     let pairs = Array2::from_shape_fn((l, 2), |(i, j)| {
@@ -173,17 +168,31 @@ fn run_slam<'py>(
     let info = Array3::from_shape_fn((l, 3, 3), |(i, a, b)| out.loops[i].information[a][b]);
     let scores = Array1::from_iter(out.loops.iter().map(|c| c.score));
     let weights = Array1::from_iter(out.loops.iter().map(|c| c.weight));
-    Ok((
-        poses.into_pyarray(py),
-        keyframes.into_pyarray(py),
-        step.into_pyarray(py),
-        pairs.into_pyarray(py),
-        z.into_pyarray(py),
-        info.into_pyarray(py),
-        scores.into_pyarray(py),
-        weights.into_pyarray(py),
-        out.submaps,
-    ))
+    let set_aside = Array1::from_iter(
+        out.loops
+            .iter()
+            .map(|c| c.status == LoopStatus::Inconsistent),
+    );
+    let doubtful = Array2::from_shape_fn((d, 2), |(i, j)| {
+        let s = &out.doubtful[i];
+        (if j == 0 { s.first } else { s.last }) as i64
+    });
+    let doubt = Array1::from_iter(out.doubtful.iter().map(|s| s.why as u8));
+    let dict = PyDict::new(py);
+    dict.set_item("poses", poses.into_pyarray(py))?;
+    dict.set_item("steps", steps.into_pyarray(py))?;
+    dict.set_item("keyframes", keyframes.into_pyarray(py))?;
+    dict.set_item("step_information", step.into_pyarray(py))?;
+    dict.set_item("loop_pairs", pairs.into_pyarray(py))?;
+    dict.set_item("loop_measurements", z.into_pyarray(py))?;
+    dict.set_item("loop_information", info.into_pyarray(py))?;
+    dict.set_item("loop_scores", scores.into_pyarray(py))?;
+    dict.set_item("loop_weights", weights.into_pyarray(py))?;
+    dict.set_item("loop_set_aside", set_aside.into_pyarray(py))?;
+    dict.set_item("doubtful", doubtful.into_pyarray(py))?;
+    dict.set_item("doubt", doubt.into_pyarray(py))?;
+    dict.set_item("submaps", out.submaps)?;
+    Ok(dict)
 }
 
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
