@@ -64,6 +64,8 @@ pub struct SlamParams {
     pub local_max_window: Window,
     /// A local match needs this correlative score (mean likelihood of its points).
     pub local_min_score: f64,
+    /// Where ICP cannot refine the search's pose, the pose is kept only with this score.
+    pub unrefined_score: f64,
     /// A match is ambiguous when a pose outside `distinct` of the best scores at least
     /// `ambiguity` times the best: the step then keeps the odometry.
     pub ambiguity: f64,
@@ -126,6 +128,7 @@ impl Default for SlamParams {
                 angular: 45f64.to_radians(),
             },
             local_min_score: 0.3,
+            unrefined_score: 0.5,
             ambiguity: 0.9,
             distinct: Window {
                 linear: 0.3,
@@ -774,12 +777,14 @@ fn match_local(
             Some((Pose2::from_array(refined.pose), refined.covariance)),
             Step::Searched,
         ))
-    } else {
+    } else if ranked.best.score >= params.unrefined_score {
         // The search's own pose, known to its lattice: a cell and a rotation step.
         let r = params.local_resolution;
         let a = 2f64.to_radians();
         let cov = [[r * r, 0.0, 0.0], [0.0, r * r, 0.0], [0.0, 0.0, a * a]];
         Ok((Some((Pose2::from_array(start), cov)), Step::Searched))
+    } else {
+        Ok((None, Step::Failed))
     }
 }
 
