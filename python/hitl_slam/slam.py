@@ -53,7 +53,7 @@ class StepKind(enum.IntEnum):
     """No match (too few points, too low a score, a failed refinement): the odometry's step."""
 
 
-_DOUBTS = {0: "match failed", 1: "contradicts the loop closures"}
+_DOUBTS = {0: "match failed", 1: "contradicts the loop closures", 2: "weak match"}
 
 
 @dataclass(frozen=True)
@@ -106,6 +106,7 @@ class SlamResult:
     time_s: float
     duration_s: float | None  # [s] of data in the log (timestamps), if known
     steps: NDArray[np.uint8]  # per scan, a StepKind
+    overlap: FloatArray  # per scan, the share of its points its match paired (NaN: none)
     doubtful: tuple[Doubtful, ...]
 
     @property
@@ -300,5 +301,6 @@ def slam(
         elapsed,
         duration,
         out["steps"],
+        out["overlap"],
         doubtful,
     )

@@ -101,6 +101,8 @@ pub struct SlamParams {
     /// The final solve contradicts a matched step between keyframes when it moves it by more
     /// than this ([m], [rad]) from its match.
     pub contradiction: [f64; 2],
+    /// A match is weak when it pairs less than this share of what the recent matches pair.
+    pub weak: f64,
 }
 
 impl Default for SlamParams {
@@ -119,16 +121,16 @@ impl Default for SlamParams {
                 angular: 8f64.to_radians(),
             },
             local_growth: Growth {
-                linear_per_m: 0.25,
+                linear_per_m: 0.0,
                 angular_per_rad: 0.25,
-                angular_per_m: 3f64.to_radians(),
+                angular_per_m: 0.0,
             },
             local_max_window: Window {
                 linear: 1.5,
                 angular: 45f64.to_radians(),
             },
-            local_min_score: 0.3,
-            unrefined_score: 0.5,
+            local_min_score: 0.1,
+            unrefined_score: 0.1,
             ambiguity: 0.9,
             distinct: Window {
                 linear: 0.3,
@@ -160,6 +162,7 @@ impl Default for SlamParams {
                 angular_per_m: 0.3f64.to_radians(),
             },
             contradiction: [0.1, 2f64.to_radians()],
+            weak: 0.5,
         }
     }
 }
@@ -231,6 +234,9 @@ pub enum Doubt {
     /// The final solve bends steps between keyframes far from their matches: the loop
     /// closures and the local matches disagree.
     Contradicted = 1,
+    /// Matches that paired far fewer of their points than the recent ones: scans that fit the
+    /// local map only in part.
+    Weak = 2,
 }
 
 /// A doubtful stretch: scans `first..=last`.
@@ -272,6 +278,8 @@ pub struct SlamResult {
     pub poses: Vec<Pose2>,
     /// How each scan was matched.
     pub steps: Vec<Step>,
+    /// The share of each scan's points its match paired with the local map (NaN: no match).
+    pub overlap: Vec<f64>,
     /// Scan index of each keyframe.
     pub keyframes: Vec<usize>,
     /// Per scan k >= 1: the information of the step k-1 -> k (from its match's covariance).
@@ -439,6 +447,8 @@ pub fn run(
 
     let mut poses = vec![Pose2::IDENTITY; n];
     let mut steps = vec![Step::Direct; n];
+    // Per scan: the share of its points its match paired with the local map (NaN: none).
+    let mut overlap = vec![f64::NAN; n];
     // Per scan: (keyframe index, offset from it) for non-keyframes.
     let mut riders: Vec<(usize, Pose2)> = vec![(0, Pose2::IDENTITY); n];
     let mut step_information = vec![diagonal(fallback); n];
@@ -479,8 +489,9 @@ pub fn run(
         if let Some(map) = local.as_mut() {
             if scan.len() >= 10 {
                 let window = params.local_window_after(since_match);
-                let (found, how) = match_local(map, scan, predicted, window, params, &icp)?;
+                let (found, how, paired) = match_local(map, scan, predicted, window, params, &icp)?;
                 step = how;
+                overlap[k] = paired;
                 if let Some((p, cov)) = found {
                     pose = p;
                     info = information_of(&cov, fallback);
@@ -692,6 +703,7 @@ pub fn run(
         poses[k] = keyframes[kf].pose.compose(offset);
     }
     let mut doubtful = unmatched_stretches(&steps, odometry, params);
+    doubtful.extend(weak_stretches(&steps, &overlap, params));
     doubtful.extend(contradicted_stretches(
         &keyframes,
         &kf_edges,
@@ -703,6 +715,7 @@ pub fn run(
     Ok(SlamResult {
         poses,
         steps,
+        overlap,
         keyframes: keyframes.iter().map(|k| k.scan).collect(),
         step_information,
         loops,
@@ -722,7 +735,7 @@ fn match_local(
     window: Window,
     params: &SlamParams,
     icp: &IcpParams,
-) -> Result<(Option<(Pose2, [[f64; 3]; 3])>, Step)> {
+) -> Result<(Option<(Pose2, [[f64; 3]; 3])>, Step, f64)> {
     let direct = map.reference.icp(scan, to_array(predicted), icp);
     let moved = predicted.between(Pose2::from_array(direct.pose));
     let half = Window {
@@ -733,6 +746,7 @@ fn match_local(
         return Ok((
             Some((Pose2::from_array(direct.pose), direct.covariance)),
             Step::Direct,
+            direct.overlap,
         ));
     }
     if map.grid.is_none() {
@@ -747,45 +761,49 @@ fn match_local(
     }
     let grid = map.grid.as_ref().expect("built above");
     let sparse = search_points(scan, params);
-    let Some(ranked) = search_ranked(
-        grid,
-        &sparse,
-        to_array(predicted),
-        window,
-        params.local_min_score,
-        Some((params.distinct, params.ambiguity)),
-    ) else {
-        return Ok((None, Step::Failed));
-    };
-    if ranked.runner_up.is_some() {
-        // Two places explain the scan: the one nearest the odometry (ICP from its
-        // prediction), with the covariance of the odometry's step, or the odometry itself.
-        return Ok(if direct.ok && within(moved, window) {
-            (
-                Some((Pose2::from_array(direct.pose), direct.covariance)),
-                Step::Ambiguous,
-            )
+    // The window the motion asks for, then once the widest: an odometry glitch (a heading
+    // jump the odometry did not report as motion) falls outside the first.
+    let mut windows = vec![window];
+    if window.linear < params.local_max_window.linear
+        || window.angular < params.local_max_window.angular
+    {
+        windows.push(params.local_max_window);
+    }
+    for w in windows {
+        let Some(ranked) = search_ranked(
+            grid,
+            &sparse,
+            to_array(predicted),
+            w,
+            params.local_min_score,
+            Some((params.distinct, params.ambiguity)),
+        ) else {
+            continue;
+        };
+        let how = if ranked.runner_up.is_some() {
+            Step::Ambiguous
         } else {
-            (None, Step::Failed)
-        });
+            Step::Searched
+        };
+        let start = ranked.best.pose;
+        let refined = map.reference.icp(scan, start, icp);
+        let moved = Pose2::from_array(start).between(Pose2::from_array(refined.pose));
+        if refined.ok && within(moved, params.local_window) {
+            return Ok((
+                Some((Pose2::from_array(refined.pose), refined.covariance)),
+                how,
+                refined.overlap,
+            ));
+        }
+        if ranked.best.score >= params.unrefined_score {
+            // The search's own pose, known to its lattice: a cell and a rotation step.
+            let r = params.local_resolution;
+            let a = 2f64.to_radians();
+            let cov = [[r * r, 0.0, 0.0], [0.0, r * r, 0.0], [0.0, 0.0, a * a]];
+            return Ok((Some((Pose2::from_array(start), cov)), how, refined.overlap));
+        }
     }
-    let start = ranked.best.pose;
-    let refined = map.reference.icp(scan, start, icp);
-    let moved = Pose2::from_array(start).between(Pose2::from_array(refined.pose));
-    if refined.ok && within(moved, params.local_window) {
-        Ok((
-            Some((Pose2::from_array(refined.pose), refined.covariance)),
-            Step::Searched,
-        ))
-    } else if ranked.best.score >= params.unrefined_score {
-        // The search's own pose, known to its lattice: a cell and a rotation step.
-        let r = params.local_resolution;
-        let a = 2f64.to_radians();
-        let cov = [[r * r, 0.0, 0.0], [0.0, r * r, 0.0], [0.0, 0.0, a * a]];
-        Ok((Some((Pose2::from_array(start), cov)), Step::Searched))
-    } else {
-        Ok((None, Step::Failed))
-    }
+    Ok((None, Step::Failed, 0.0))
 }
 
 /// Loop closure candidates waiting for the group test: those found since the last test.
@@ -860,6 +878,55 @@ fn unmatched_stretches(steps: &[Step], odometry: &[Pose2], params: &SlamParams) 
     }
     out
 }
+
+/// Runs of at least `WEAK_RUN` matched scans in a row whose matches paired less than
+/// `params.weak` of the share the recent matches paired (the median of the last `WEAK_WINDOW`):
+/// scans that fit the local map only in part, as ones from another place do. Relative, so that
+/// a hall, where every match pairs little, is not doubtful for it; a run, because one scan
+/// turning into a room it has not seen pairs little too.
+fn weak_stretches(steps: &[Step], overlap: &[f64], params: &SlamParams) -> Vec<Doubtful> {
+    let mut out = Vec::new();
+    let mut recent: std::collections::VecDeque<f64> = std::collections::VecDeque::new();
+    let mut run: Option<(usize, usize, usize)> = None; // (first, last, weak scans)
+    let mut close = |run: &mut Option<(usize, usize, usize)>| {
+        if let Some((first, last, count)) = run.take() {
+            if count >= WEAK_RUN {
+                out.push(Doubtful {
+                    first,
+                    last,
+                    why: Doubt::Weak,
+                });
+            }
+        }
+    };
+    for (k, (&step, &q)) in steps.iter().zip(overlap).enumerate() {
+        if !step.matched() || q.is_nan() {
+            continue;
+        }
+        if recent.len() >= WEAK_WINDOW / 2 {
+            let mut sorted: Vec<f64> = recent.iter().copied().collect();
+            sorted.sort_by(f64::total_cmp);
+            let median = sorted[sorted.len() / 2];
+            if q < params.weak * median {
+                run = Some(match run {
+                    Some((first, _, count)) => (first, k, count + 1),
+                    None => (k, k, 1),
+                });
+                continue; // a weak match does not lower the bar for the next
+            }
+        }
+        close(&mut run);
+        recent.push_back(q);
+        if recent.len() > WEAK_WINDOW {
+            recent.pop_front();
+        }
+    }
+    close(&mut run);
+    out
+}
+
+const WEAK_RUN: usize = 3;
+const WEAK_WINDOW: usize = 50;
 
 /// Stretches between keyframes whose matched step the final solve moved by more than
 /// `params.contradiction` (merged when adjacent).

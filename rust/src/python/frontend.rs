@@ -181,6 +181,10 @@ fn run_slam<'py>(
     let dict = PyDict::new(py);
     dict.set_item("poses", poses.into_pyarray(py))?;
     dict.set_item("steps", steps.into_pyarray(py))?;
+    dict.set_item(
+        "overlap",
+        Array1::from_vec(out.overlap.clone()).into_pyarray(py),
+    )?;
     dict.set_item("keyframes", keyframes.into_pyarray(py))?;
     dict.set_item("step_information", step.into_pyarray(py))?;
     dict.set_item("loop_pairs", pairs.into_pyarray(py))?;
