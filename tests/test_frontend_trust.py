@@ -94,7 +94,6 @@ def test_a_ros2_bag_of_the_log_scores_within_10_percent_of_the_log(
 ) -> None:
     pytest.importorskip("rosbags")
     from bag_support import Bag, Scan, Transform, seconds_to_ns, write_bag
-
     from hitl_slam.io.maps import load_map
 
     log = _log(intel)
