@@ -38,6 +38,10 @@ pub struct IcpParams {
     pub min_pairs: usize,
     /// Standard deviations added to the Hessian's covariance (it is optimistic): [m], [rad].
     pub sigma_floor: [f64; 2],
+    /// Stop, failed, once the gate is within twice its floor and fewer than this share of the
+    /// points pair (0: never): a match that will not reach a share it is asked for is not
+    /// iterated to the end.
+    pub abandon_below: f64,
 }
 
 impl Default for IcpParams {
@@ -53,6 +57,7 @@ impl Default for IcpParams {
             min_overlap: 0.25,
             min_pairs: 25,
             sigma_floor: [0.02, 1.0f64.to_radians()],
+            abandon_below: 0.0,
         }
     }
 }
@@ -205,6 +210,14 @@ impl Reference {
             last = (h, pairs, sq, wsum);
             if pairs < 3 {
                 break;
+            }
+            if gate <= 2.0 * p.min_pair_distance
+                && (pairs as f64) < p.abandon_below * current.len() as f64
+            {
+                return ScanMatch {
+                    overlap: pairs as f64 / current.len().max(1) as f64,
+                    ..ScanMatch::failed(pose)
+                };
             }
             let Some(step) = (h + Matrix3::identity() * 1e-9)
                 .try_inverse()
@@ -416,5 +429,30 @@ mod tests {
         assert!(out.iter().all(|m| m.ok));
         assert!(match_chain(&points, &offsets, &guesses[..1], &IcpParams::default()).is_err());
         assert!(match_chain(&points, &[0, 5], &[], &IcpParams::default()).is_err());
+    }
+
+    #[test]
+    fn a_match_short_of_the_share_asked_for_is_abandoned_and_one_above_it_is_not() {
+        let (a, b) = ([4.0, 2.5, 0.3], [4.3, 2.4, 0.45]);
+        let truth = between(a, b);
+        let reference = Reference::new(&room(a), 0.25);
+        let guess = [truth[0] + 0.03, truth[1] - 0.02, truth[2] + 0.01];
+        let plain = IcpParams::default();
+        let full = reference.icp(&room(b), guess, &plain);
+        assert!(full.ok && full.overlap > 0.9, "{full:?}");
+        // Above its share the early stop changes nothing.
+        let asked = IcpParams {
+            abandon_below: 0.7,
+            ..plain.clone()
+        };
+        assert_eq!(reference.icp(&room(b), guess, &asked), full);
+        // Half the scan seen elsewhere: it cannot pair 70%, and stops, failed.
+        let mut half = room(b);
+        let n = half.len();
+        for p in half.iter_mut().take(n / 2) {
+            p[0] += 40.0;
+        }
+        let stopped = reference.icp(&half, guess, &asked);
+        assert!(!stopped.ok && stopped.overlap < 0.7, "{stopped:?}");
     }
 }

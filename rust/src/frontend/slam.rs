@@ -736,7 +736,13 @@ fn match_local(
     params: &SlamParams,
     icp: &IcpParams,
 ) -> Result<(Option<(Pose2, [[f64; 3]; 3])>, Step, f64)> {
-    let direct = map.reference.icp(scan, to_array(predicted), icp);
+    // Abandoned early where it will not pair the share a direct match needs (on Freiburg 079
+    // most scans see beyond the local map and go on to the search).
+    let direct_icp = IcpParams {
+        abandon_below: params.direct_overlap,
+        ..icp.clone()
+    };
+    let direct = map.reference.icp(scan, to_array(predicted), &direct_icp);
     let moved = predicted.between(Pose2::from_array(direct.pose));
     let half = Window {
         linear: 0.5 * window.linear,
