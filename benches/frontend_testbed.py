@@ -33,7 +33,7 @@ every log given, and `raw` is always run, as the baseline of the ratios):
                     (`noise5mm` names all five)
     ros1, ros2      the unmodified scans and odometry written as a ROS 1 bag / a ROS 2 bag
                     (sqlite3) with rosbags' writers (/tf odom -> base_link, the laser at
-                    base_link, as benches/frontend_bags.py), read back with load_map; a log
+                    base_link), read back with load_map; a log
                     whose scans share a stamp (Orebro, Belgioioso: all 0) is re-stamped 0.1 s
                     apart, as TF is looked up by stamp
 
@@ -259,7 +259,7 @@ def base_map(key: str, max_scans: int | None) -> tuple[Map, NDArray[np.float64] 
 
 def write_log_bag(key: str, kind: str, folder: Path, max_scans: int | None) -> dict[str, Any]:
     """The log's scans (its FLASER lines' ranges) and odometry poses (a corrected log's: made
-    raw) as a bag (benches/frontend_bags.py's layout); the log's own stamps unless two scans
+    raw) as a bag (/tf odom -> base_link, the laser at base_link); the log's own stamps unless two scans
     share one (the Radish logs with all zero stamps), then 0.1 s apart."""
     sys.path.insert(0, str(ROOT / "tests"))
     from bag_support import Bag, Scan, Transform, seconds_to_ns, write_bag

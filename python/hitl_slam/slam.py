@@ -48,7 +48,8 @@ class StepKind(enum.IntEnum):
     SEARCHED = 1
     """The correlative search over the local window, refined by ICP."""
     AMBIGUOUS = 2
-    """Two distinct poses explain the scan about as well: the odometry's step is kept."""
+    """Two distinct poses explain the scan about as well (a corridor, along its axis): counted,
+    and the best match is kept (keeping the odometry was measured worse, docs §F.1)."""
     FAILED = 3
     """No match (too few points, too low a score, a failed refinement): the odometry's step."""
 
@@ -59,10 +60,11 @@ _DOUBTS = {0: "match failed", 1: "contradicts the loop closures", 2: "weak match
 @dataclass(frozen=True)
 class Doubtful:
     """A stretch of the map the front end does not vouch for: scans ``first..last`` (0-based,
-    inclusive) and why: ``"match failed"`` (its scans could not be matched, or matched two
-    places equally well, over at least a keyframe's worth of motion: their poses are the
-    odometry's) or ``"contradicts the loop closures"`` (the final solve bends steps there far
-    from what the scans matched)."""
+    inclusive) and why: ``"match failed"`` (its scans could not be matched over at least a
+    keyframe's worth of motion: their poses are the odometry's), ``"weak match"`` (three or more
+    matches in a row paired under half the share of points the recent ones paired: scans that
+    fit the local map only in part, as scans from elsewhere do) or ``"contradicts the loop
+    closures"`` (the final solve bends steps there far from what the scans matched)."""
 
     first: int
     last: int
@@ -116,9 +118,8 @@ class SlamResult:
 
     @property
     def unmatched_steps(self) -> int:
-        """Scans the front end could not match (failed or ambiguous): their steps are the
-        odometry's."""
-        return int(np.count_nonzero(self.steps >= StepKind.AMBIGUOUS))
+        """Scans the front end could not match: their steps are the odometry's."""
+        return int(np.count_nonzero(self.steps == StepKind.FAILED))
 
     def accepted_map(self) -> Map:
         """:attr:`map` without the loop closures the front end rejected (its edges: the matched

@@ -1,21 +1,25 @@
 //! The scan-matching front end (docs/ALGORITHM.md §F): a raw laser log (scans with their
-//! odometry) to a pose graph and a pose for every scan.
+//! odometry) to a pose graph and a pose for every scan, and what it doubts of it.
 //!
 //! - Every scan is matched against the local map (the last keyframes' points) from the pose the
-//!   odometry predicts: correlative search by branch and bound in a small window on a likelihood
-//!   field ([`super::correlative`]), refined by point-to-line ICP ([`super::icp`], Censi 2008),
-//!   whose Hessian gives the match's covariance.
-//! - A scan that moved far enough from the last keyframe (distance or turn) becomes a keyframe;
-//!   the others ride on their keyframe by their matched offset, so every scan keeps a pose.
-//! - Keyframes are grouped into submaps (points in the frame of the submap's first keyframe, on
-//!   a coarser likelihood field). Every few keyframes, the finished submaps near the keyframe's
-//!   estimate are searched for a loop closure in a window that grows with the distance
-//!   travelled since the submap (branch and bound over the whole window, as Hess et al. 2016),
-//!   accepted when the score and the ICP refinement agree.
-//! - The keyframe graph (matched odometry plus loop closures) is optimized with the solver's
-//!   Levenberg-Marquardt and dynamic covariance scaling on loop closures (Agarwal et al. 2013),
-//!   whenever closures arrived and at the end; loop closures the solve down-weights below one
-//!   half are reported as rejected.
+//!   odometry predicts: ICP from the prediction when it holds, else a correlative search by
+//!   branch and bound ([`super::correlative`]) in a window whose heading half-width grows with
+//!   the odometry's turn since the last match (once more over the widest window if it fails),
+//!   refined by point-to-line ICP ([`super::icp`], Censi 2008), whose Hessian gives the match's
+//!   covariance. A search with a distinct runner-up is counted as ambiguous; a failed one keeps
+//!   the odometry.
+//! - A matched scan that moved far enough from the last keyframe becomes a keyframe; unmatched
+//!   scans only once the robot is lost (the local map then starts again); the others ride on
+//!   their keyframe by their offset, so every scan keeps a pose.
+//! - Keyframes are grouped into submaps. Every few keyframes, the finished submaps near the
+//!   keyframe's estimate are searched for a loop closure in a window that grows with the
+//!   distance travelled since the submap (Hess et al. 2016), accepted when the score and the ICP
+//!   refinement agree; the candidates are group-tested for mutual consistency
+//!   ([`super::consistency`]) before they enter the solve.
+//! - The keyframe graph is optimized with Levenberg-Marquardt and dynamic covariance scaling on
+//!   loop closures (Agarwal et al. 2013); the final solve is checked against the matched steps.
+//! - Stretches it doubts (unmatched runs, weak matches, steps the final solve contradicts) are
+//!   returned with the map.
 
 use nalgebra::Matrix3;
 
@@ -29,16 +33,6 @@ use crate::graph::FactorGraph;
 use crate::se2::Pose2;
 use crate::solver::{optimize, Kernel, RobustKernels, SolverParams};
 use crate::values::Values;
-
-/// How a search window grows with the odometry's motion since the last matched scan:
-/// `linear_per_m` [m/m] of its distance, `angular_per_rad` [rad/rad] of its turn plus
-/// `angular_per_m` [rad/m] of its distance.
-#[derive(Clone, Copy, Debug)]
-pub struct Growth {
-    pub linear_per_m: f64,
-    pub angular_per_rad: f64,
-    pub angular_per_m: f64,
-}
 
 /// The front end's settings. Lengths in metres, angles in radians.
 #[derive(Clone, Debug)]
@@ -58,8 +52,9 @@ pub struct SlamParams {
     pub local_resolution: f64,
     /// The local search window for a scan whose odometry did not move ...
     pub local_window: Window,
-    /// ... grown with the odometry's motion since the last matched scan ...
-    pub local_growth: Growth,
+    /// ... its angular half-width grown by this share [rad/rad] of the odometry's turn since
+    /// the last matched scan ...
+    pub local_turn_growth: f64,
     /// ... up to this.
     pub local_max_window: Window,
     /// A local match needs this correlative score (mean likelihood of its points).
@@ -120,11 +115,7 @@ impl Default for SlamParams {
                 linear: 0.25,
                 angular: 8f64.to_radians(),
             },
-            local_growth: Growth {
-                linear_per_m: 0.0,
-                angular_per_rad: 0.25,
-                angular_per_m: 0.0,
-            },
+            local_turn_growth: 0.25,
             local_max_window: Window {
                 linear: 1.5,
                 angular: 45f64.to_radians(),
@@ -188,16 +179,12 @@ impl SlamParams {
         Ok(())
     }
 
-    /// The local window after the odometry moved `since` (distance [m], turn [rad]) since the
-    /// last matched scan.
+    /// The local window after the odometry turned `since.turn` [rad] since the last matched
+    /// scan (its heading error grows with the turn; the linear half-width stays).
     fn local_window_after(&self, since: Motion) -> Window {
-        let g = self.local_growth;
         Window {
-            linear: (self.local_window.linear + g.linear_per_m * since.distance)
-                .min(self.local_max_window.linear),
-            angular: (self.local_window.angular
-                + g.angular_per_rad * since.turn
-                + g.angular_per_m * since.distance)
+            linear: self.local_window.linear.min(self.local_max_window.linear),
+            angular: (self.local_window.angular + self.local_turn_growth * since.turn)
                 .min(self.local_max_window.angular),
         }
     }
