@@ -88,6 +88,9 @@ pub struct SlamParams {
     pub loop_every: usize,
     /// An ICP refinement must pair at least this share of the scan.
     pub loop_min_overlap: f64,
+    /// A loop closure's standard deviations are at least these ([m], [rad]): its submap is
+    /// frozen in its first keyframe's frame, centimetres off in itself.
+    pub loop_sigma_floor: [f64; 2],
     pub optimize_every: usize,
     /// DCS's Phi on loop closures (chi2 units).
     pub dcs: f64,
@@ -143,6 +146,7 @@ impl Default for SlamParams {
             loop_min_score: 0.55,
             loop_every: 3,
             loop_min_overlap: 0.6,
+            loop_sigma_floor: [0.05, 1f64.to_radians()],
             optimize_every: 25,
             dcs: 10.0,
             consistency: Gate {
@@ -431,6 +435,10 @@ pub fn run(
         ..IcpParams::default()
     };
     let fallback = [0.1, 0.1, 2f64.to_radians()];
+    let loop_icp = IcpParams {
+        sigma_floor: params.loop_sigma_floor,
+        ..icp.clone()
+    };
 
     let mut poses = vec![Pose2::IDENTITY; n];
     let mut steps = vec![Step::Direct; n];
@@ -571,7 +579,7 @@ pub fn run(
                 let reference = sm.reference.get_or_insert_with(|| {
                     Reference::with_normals(&sm.points, &sm.normals, icp.normal_radius)
                 });
-                let refined = reference.icp(scan, found.pose, &icp);
+                let refined = reference.icp(scan, found.pose, &loop_icp);
                 let jump = Pose2::from_array(found.pose).between(Pose2::from_array(refined.pose));
                 if !(refined.ok
                     && refined.overlap >= params.loop_min_overlap
@@ -690,7 +698,7 @@ pub fn run(
         poses[k] = keyframes[kf].pose.compose(offset);
     }
     let mut doubtful = unmatched_stretches(&steps, odometry, params);
-    doubtful.extend(weak_stretches(&steps, &overlap, params));
+    doubtful.extend(weak_stretches(&steps, &overlap, odometry, params));
     doubtful.extend(contradicted_stretches(
         &keyframes,
         &kf_edges,
@@ -877,13 +885,24 @@ fn unmatched_stretches(steps: &[Step], odometry: &[Pose2], params: &SlamParams) 
 /// scans that fit the local map only in part, as ones from another place do. Relative, so that
 /// a hall, where every match pairs little, is not doubtful for it; a run, because one scan
 /// turning into a room it has not seen pairs little too.
-fn weak_stretches(steps: &[Step], overlap: &[f64], params: &SlamParams) -> Vec<Doubtful> {
+fn weak_stretches(
+    steps: &[Step],
+    overlap: &[f64],
+    odometry: &[Pose2],
+    params: &SlamParams,
+) -> Vec<Doubtful> {
     let mut out = Vec::new();
     let mut recent: std::collections::VecDeque<f64> = std::collections::VecDeque::new();
     let mut run: Option<(usize, usize, usize)> = None; // (first, last, weak scans)
     let mut close = |run: &mut Option<(usize, usize, usize)>| {
         if let Some((first, last, count)) = run.take() {
-            if count >= WEAK_RUN {
+            let mut motion = Motion::default();
+            for k in first.max(1)..=last {
+                motion.add(odometry[k - 1].between(odometry[k]));
+            }
+            let moved =
+                motion.distance >= params.keyframe_distance || motion.turn >= params.keyframe_angle;
+            if count >= WEAK_RUN && moved {
                 out.push(Doubtful {
                     first,
                     last,
