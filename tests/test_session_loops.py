@@ -311,7 +311,9 @@ def test_the_front_end_lists_every_loop_closure_of_orebro(tmp_path: Path) -> Non
     m = result.map
     n = m.num_poses
     assert loops.pairs.shape[0] >= 2
-    assert (~loops.accepted).any(), "Orebro's front end rejects one loop closure (measured)"
+    # Whether the front end rejects one of them varies with its settings (one was rejected
+    # before issue 39's loop closure floor, none since); the session lists what it rejected
+    # either way (below), and tests/loop_support.py's maps hold rejected ones on purpose.
     # Every loop closure is an edge of the map; the accepted map is today's graph.
     assert m.edges.shape[0] == n - 1 + loops.pairs.shape[0]
     kept = result.accepted_map()
