@@ -259,8 +259,8 @@ def base_map(key: str, max_scans: int | None) -> tuple[Map, NDArray[np.float64] 
 
 def write_log_bag(key: str, kind: str, folder: Path, max_scans: int | None) -> dict[str, Any]:
     """The log's scans (its FLASER lines' ranges) and odometry poses (a corrected log's: made
-    raw) as a bag (/tf odom -> base_link, the laser at base_link); the log's own stamps unless two scans
-    share one (the Radish logs with all zero stamps), then 0.1 s apart."""
+    raw) as a bag (/tf odom -> base_link, the laser at base_link); the log's own stamps unless
+    two scans share one (the Radish logs with all zero stamps), then 0.1 s apart."""
     sys.path.insert(0, str(ROOT / "tests"))
     from bag_support import Bag, Scan, Transform, seconds_to_ns, write_bag
     from hitl_slam.io.textfile import read_lines
