@@ -37,8 +37,8 @@ OREBRO = LASER / "orebro-corrected.log.gz"
 
 # The room's scans are few and simulated: matched again they contradict a quarter of its odometry
 # steps, which the default guard refuses, and the aligned room can hold the statement off (the
-# guard of docs §I.16). Allowing every step and statement lets the alignment through: these
-# tests are about the endpoint, not the guards.
+# guard of docs/ALGORITHM.md §I.16). Allowing every step and statement lets the alignment
+# through: these tests are about the endpoint, not the guards.
 PERMISSIVE = DEFAULT.replace(
     align_max_contradicted=1.0,
     align_max_contradicted_local=1.0,
