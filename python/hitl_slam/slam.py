@@ -116,11 +116,6 @@ class SlamResult:
         """``"good"``, or ``"doubtful"`` when a stretch is (:attr:`doubtful`)."""
         return "doubtful" if self.doubtful else "good"
 
-    @property
-    def unmatched_steps(self) -> int:
-        """Scans the front end could not match: their steps are the odometry's."""
-        return int(np.count_nonzero(self.steps == StepKind.FAILED))
-
     def accepted_map(self) -> Map:
         """:attr:`map` without the loop closures the front end rejected (its edges: the matched
         steps and the accepted loop closures), e.g. to export as a pose graph."""

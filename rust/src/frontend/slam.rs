@@ -187,7 +187,7 @@ impl SlamParams {
     /// scan (its heading error grows with the turn; the linear half-width stays).
     fn local_window_after(&self, since: Motion) -> Window {
         Window {
-            linear: self.local_window.linear.min(self.local_max_window.linear),
+            linear: self.local_window.linear,
             angular: (self.local_window.angular + self.local_turn_growth * since.turn)
                 .min(self.local_max_window.angular),
         }
@@ -439,6 +439,12 @@ pub fn run(
         sigma_floor: params.loop_sigma_floor,
         ..icp.clone()
     };
+    // ICP from the prediction is abandoned early where it will not pair the share a direct
+    // match needs (on Freiburg 079 most scans see beyond the local map and go on to the search).
+    let direct_icp = IcpParams {
+        abandon_below: params.direct_overlap,
+        ..icp.clone()
+    };
 
     let mut poses = vec![Pose2::IDENTITY; n];
     let mut steps = vec![Step::Direct; n];
@@ -484,7 +490,8 @@ pub fn run(
         if let Some(map) = local.as_mut() {
             if scan.len() >= 10 {
                 let window = params.local_window_after(since_match);
-                let (found, how, paired) = match_local(map, scan, predicted, window, params, &icp)?;
+                let (found, how, paired) =
+                    match_local(map, scan, predicted, window, params, &icp, &direct_icp)?;
                 step = how;
                 overlap[k] = paired;
                 if let Some((p, cov)) = found {
@@ -636,17 +643,16 @@ pub fn run(
         // keyframe before is always in the check, also where the local map starts again: a
         // jump too far for one grid is damaged data, not a place the robot got lost in.
         let check_from = first.min(kf.saturating_sub(1));
-        let before: Vec<Point> = keyframes[check_from..first]
-            .iter()
-            .flat_map(|key| scans[key.scan].iter().map(|p| key.pose.transform_point(*p)))
-            .chain(
-                pts.iter()
-                    .copied()
-                    .take(if check_from < first { pts.len() } else { 0 }),
-            )
-            .collect();
-        let span = if check_from < first { &before } else { &pts };
-        LikelihoodGrid::check_size(span, params.local_resolution, params.local_resolution, 3)
+        let mut span = std::borrow::Cow::Borrowed(&pts[..]);
+        if check_from < first {
+            let mut wider: Vec<Point> = keyframes[check_from..first]
+                .iter()
+                .flat_map(|key| scans[key.scan].iter().map(|p| key.pose.transform_point(*p)))
+                .collect();
+            wider.extend_from_slice(&pts);
+            span = std::borrow::Cow::Owned(wider);
+        }
+        LikelihoodGrid::check_size(&span, params.local_resolution, params.local_resolution, 3)
             .map_err(|e| far_off(&keyframes[check_from..], n, "the local map", e))?;
         local = Some(LocalMap {
             reference,
@@ -730,14 +736,9 @@ fn match_local(
     window: Window,
     params: &SlamParams,
     icp: &IcpParams,
+    direct_icp: &IcpParams,
 ) -> Result<(Option<(Pose2, [[f64; 3]; 3])>, Step, f64)> {
-    // Abandoned early where it will not pair the share a direct match needs (on Freiburg 079
-    // most scans see beyond the local map and go on to the search).
-    let direct_icp = IcpParams {
-        abandon_below: params.direct_overlap,
-        ..icp.clone()
-    };
-    let direct = map.reference.icp(scan, to_array(predicted), &direct_icp);
+    let direct = map.reference.icp(scan, to_array(predicted), direct_icp);
     let moved = predicted.between(Pose2::from_array(direct.pose));
     let half = Window {
         linear: 0.5 * window.linear,
