@@ -50,6 +50,9 @@ pub struct Ranked {
     /// The best pose farther than the distinct window from `best` scoring at least the asked
     /// share of its score: a second explanation of the scan, so the match is ambiguous.
     pub runner_up: Option<Found>,
+    /// The best pose is on the window's border (its outermost rotation or cell): the score
+    /// may still rise outside, so the true peak may lie beyond the window.
+    pub on_edge: bool,
 }
 
 /// Leaves within `cells` translation cells and `rotations` rotation steps of a pose are skipped.
@@ -158,6 +161,8 @@ pub fn search_ranked(
         })
     };
     let top_found = found(best)?;
+    let on_edge =
+        best.1 == 0 || best.1 + 1 == rotations.len() || best.2.abs() >= w || best.3.abs() >= w;
     let runner_up = distinct.and_then(|(d, ratio)| {
         let exclusion = Exclusion {
             rotation: best.1,
@@ -173,6 +178,7 @@ pub fn search_ranked(
     Some(Ranked {
         best: top_found,
         runner_up,
+        on_edge,
     })
 }
 
@@ -232,6 +238,54 @@ mod tests {
             }
         }
         pts
+    }
+
+    /// The map seen from `truth`, in the robot frame.
+    fn seen_from(map: &[Point], truth: [f64; 3]) -> Vec<Point> {
+        let (s, c) = truth[2].sin_cos();
+        map.iter()
+            .step_by(3)
+            .map(|p| {
+                let d = [p[0] - truth[0], p[1] - truth[1]];
+                [c * d[0] + s * d[1], -s * d[0] + c * d[1]]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_peak_beyond_the_window_shows_as_a_best_pose_on_its_border() {
+        let map = room();
+        let grid = LikelihoodGrid::new(&map, 0.05, 0.05, 4).unwrap();
+        let narrow = Window {
+            linear: 0.25,
+            angular: 8f64.to_radians(),
+        };
+        let wide = Window {
+            linear: 1.5,
+            angular: 45f64.to_radians(),
+        };
+        let inside = search_ranked(
+            &grid,
+            &seen_from(&map, [0.1, -0.05, 0.04]),
+            [0.0; 3],
+            narrow,
+            0.1,
+            None,
+        )
+        .unwrap();
+        assert!(!inside.on_edge, "{inside:?}");
+        for truth in [[0.6, 0.0, 0.0], [0.0, 0.0, 0.3]] {
+            let scan = seen_from(&map, truth);
+            let near = search_ranked(&grid, &scan, [0.0; 3], narrow, 0.1, None).unwrap();
+            assert!(near.on_edge, "{truth:?}: {near:?}");
+            let far = search_ranked(&grid, &scan, [0.0; 3], wide, 0.1, None).unwrap();
+            assert!(
+                !far.on_edge && far.best.score > near.best.score,
+                "{truth:?}: {far:?}"
+            );
+            assert!((far.best.pose[0] - truth[0]).abs() <= 0.05, "{far:?}");
+            assert!((far.best.pose[2] - truth[2]).abs() <= 0.02, "{far:?}");
+        }
     }
 
     #[test]

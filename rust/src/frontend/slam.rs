@@ -771,7 +771,8 @@ fn match_local(
     {
         windows.push(params.local_max_window);
     }
-    for w in windows {
+    let last = windows.len() - 1;
+    for (i, w) in windows.into_iter().enumerate() {
         let Some(ranked) = search_ranked(
             grid,
             &sparse,
@@ -782,6 +783,11 @@ fn match_local(
         ) else {
             continue;
         };
+        if ranked.on_edge && i < last {
+            // The peak is at the window's border: it may lie beyond (a glitch of the
+            // odometry larger than the motion's window), so the widest window decides.
+            continue;
+        }
         let how = if ranked.runner_up.is_some() {
             Step::Ambiguous
         } else {
