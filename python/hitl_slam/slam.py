@@ -54,7 +54,12 @@ class StepKind(enum.IntEnum):
     """No match (too few points, too low a score, a failed refinement): the odometry's step."""
 
 
-_DOUBTS = {0: "match failed", 1: "contradicts the loop closures", 2: "weak match"}
+_DOUBTS = {
+    0: "match failed",
+    1: "contradicts the loop closures",
+    2: "weak match",
+    3: "odometry jump",
+}
 
 
 @dataclass(frozen=True)
@@ -63,8 +68,10 @@ class Doubtful:
     inclusive) and why: ``"match failed"`` (its scans could not be matched over at least a
     keyframe's worth of motion: their poses are the odometry's), ``"weak match"`` (three or more
     matches in a row paired under half the share of points the recent ones paired: scans that
-    fit the local map only in part, as scans from elsewhere do) or ``"contradicts the loop
-    closures"`` (the final solve bends steps there far from what the scans matched)."""
+    fit the local map only in part, as scans from elsewhere do), ``"odometry jump"`` (a scan
+    placed far outside what the odometry predicts, by a match that is ambiguous or pairs under
+    half the usual share: a glitch of the odometry, or scans from elsewhere) or ``"contradicts
+    the loop closures"`` (the final solve bends steps there far from what the scans matched)."""
 
     first: int
     last: int

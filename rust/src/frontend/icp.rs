@@ -16,6 +16,42 @@ use crate::error::{HitlError, Result};
 use crate::geometry::{principal_normal, weighted_scatter};
 use crate::se2::{transform, wrap_angle};
 
+/// The variance [m^2] of a point-to-line residual when weighed against a prior while iterating
+/// (a centimetre: a laser's range noise and a wall's texture). Not the residuals' own variance,
+/// which in the first iterations measures the misalignment and would let the prior hold the
+/// pose back where the scan does constrain it.
+const RESIDUAL_VARIANCE: f64 = 1e-4;
+
+/// A translation direction is degenerate when the scan's information along it is below this
+/// share of the information across it: a corridor whose ends are out of range, where only the
+/// normals' noise (a degree or two of tilt) seems to constrain the pose along the axis.
+const DEGENERATE: f64 = 0.02;
+
+/// The projection that drops a degenerate translation direction of the Gauss-Newton Hessian `h`
+/// (the identity where there is none), after Zhang, Kaess and Singh, "On degeneracy of
+/// optimization-based state estimation problems", ICRA 2016: along it the prior decides.
+fn constrained(h: &Matrix3<f64>) -> Matrix3<f64> {
+    let (a, b, c) = (h[(0, 0)], h[(0, 1)], h[(1, 1)]);
+    let half_trace = 0.5 * (a + c);
+    let root = (0.25 * (a - c).powi(2) + b * b).sqrt();
+    let (major, minor) = (half_trace + root, half_trace - root);
+    if major.is_nan() || major <= 0.0 || minor >= DEGENERATE * major {
+        return Matrix3::identity();
+    }
+    // The eigenvector of the minor eigenvalue.
+    let v = if b.abs() > 1e-12 * major {
+        let (x, y) = (minor - c, b);
+        let n = x.hypot(y);
+        [x / n, y / n]
+    } else if a <= c {
+        [1.0, 0.0]
+    } else {
+        [0.0, 1.0]
+    };
+    let p = Vector3::new(v[0], v[1], 0.0);
+    Matrix3::identity() - p * p.transpose()
+}
+
 /// How scans are matched.
 #[derive(Clone, Debug)]
 pub struct IcpParams {
@@ -42,6 +78,9 @@ pub struct IcpParams {
     /// points pair (0: never): a match that will not reach a share it is asked for is not
     /// iterated to the end.
     pub abandon_below: f64,
+    /// With a prior: a degenerate translation direction of the scan (`DEGENERATE`) is left to
+    /// the prior alone.
+    pub degenerate_to_prior: bool,
 }
 
 impl Default for IcpParams {
@@ -58,6 +97,7 @@ impl Default for IcpParams {
             min_pairs: 25,
             sigma_floor: [0.02, 1.0f64.to_radians()],
             abandon_below: 0.0,
+            degenerate_to_prior: false,
         }
     }
 }
@@ -172,6 +212,31 @@ impl Reference {
 
     /// Point-to-line ICP from `start`; returns the pose, the final Hessian and its residuals.
     pub fn icp(&self, current: &[[f64; 2]], start: [f64; 3], p: &IcpParams) -> ScanMatch {
+        self.icp_with_prior(current, start, None, p)
+    }
+
+    /// [`Reference::icp`] with a Gaussian prior on the pose, `prior = (mean, information)`
+    /// (world frame, x y theta): where the scan does not constrain the pose (along a corridor
+    /// whose ends are out of range) the pose goes to the prior's mean instead of sliding on the
+    /// residuals' noise. With `degenerate_to_prior`, degenerate translation directions
+    /// (`DEGENERATE`) are left to the prior alone. The covariance returned is the scan's own, without the prior (the caller's
+    /// graph holds the odometry).
+    pub fn icp_with_prior(
+        &self,
+        current: &[[f64; 2]],
+        start: [f64; 3],
+        prior: Option<([f64; 3], &[[f64; 3]; 3])>,
+        p: &IcpParams,
+    ) -> ScanMatch {
+        let mean = prior.map_or(start, |(m, _)| m);
+        let prior = prior.map(|(_, m)| Matrix3::from_fn(|i, j| m[i][j]));
+        let offset = |pose: [f64; 3]| {
+            Vector3::new(
+                pose[0] - mean[0],
+                pose[1] - mean[1],
+                wrap_angle(pose[2] - mean[2]),
+            )
+        };
         let mut pose = start;
         let mut gate = p.max_pair_distance;
         let mut last = (Matrix3::zeros(), 0usize, 0.0f64, 0.0f64);
@@ -219,9 +284,24 @@ impl Reference {
                     ..ScanMatch::failed(pose)
                 };
             }
-            let Some(step) = (h + Matrix3::identity() * 1e-9)
+            let (a, b) = match prior {
+                Some(prior) => {
+                    let keep = if p.degenerate_to_prior {
+                        constrained(&h)
+                    } else {
+                        Matrix3::identity()
+                    };
+                    let (h, g) = (keep * h * keep, keep * g);
+                    (
+                        h / RESIDUAL_VARIANCE + prior,
+                        g / RESIDUAL_VARIANCE + prior * offset(pose),
+                    )
+                }
+                None => (h, g),
+            };
+            let Some(step) = (a + Matrix3::identity() * 1e-9)
                 .try_inverse()
-                .map(|hi| hi * g)
+                .map(|hi| hi * b)
             else {
                 break;
             };
@@ -385,6 +465,70 @@ mod tests {
             -s * d[0] + c * d[1],
             wrap_angle(b[2] - a[2]),
         ]
+    }
+
+    /// Two parallel walls 2 m apart along x, with a slight waviness (the normals tilt by about
+    /// a degree, as real walls' do), 12 m long: a corridor whose ends are out of sight.
+    fn corridor() -> Vec<[f64; 2]> {
+        let mut out = Vec::new();
+        for i in 0..600 {
+            let x = -6.0 + 0.02 * i as f64;
+            let wave = 0.004 * (x * 7.0).sin();
+            out.push([x, -1.0 + wave]);
+            out.push([x, 1.0 - wave]);
+        }
+        out
+    }
+
+    #[test]
+    fn a_corridor_leaves_its_axis_to_the_prior_and_a_room_constrains_both_directions() {
+        let walls = Reference::new(&corridor(), 0.25);
+        let p = IcpParams {
+            search: 0.0,
+            max_pair_distance: 0.3,
+            min_pair_distance: 0.05,
+            degenerate_to_prior: true,
+            ..IcpParams::default()
+        };
+        // The scan: the corridor's middle 6 m seen from (0.0, 0.05), started 0.02 m off across
+        // and 0.15 m off along the axis (where the points cannot tell).
+        let scan: Vec<[f64; 2]> = corridor()
+            .into_iter()
+            .filter(|q| q[0].abs() <= 3.0)
+            .map(|q| [q[0], q[1] - 0.05])
+            .collect();
+        let start = [0.15, 0.07, 0.0];
+        let prior_mean = [0.02, 0.0, 0.0];
+        let information = [[400.0, 0.0, 0.0], [0.0, 400.0, 0.0], [0.0, 0.0, 800.0]];
+        let m = walls.icp_with_prior(&scan, start, Some((prior_mean, &information)), &p);
+        assert!(m.ok, "{m:?}");
+        assert!(
+            (m.pose[1] - 0.05).abs() < 0.01,
+            "across the axis the scan decides: {m:?}"
+        );
+        assert!(
+            (m.pose[0] - prior_mean[0]).abs() < 0.01,
+            "along it the prior: {m:?}"
+        );
+        // The Hessian's projection: a corridor's drops the axis, a room's keeps both.
+        let mut h = Matrix3::zeros();
+        h[(1, 1)] = 100.0;
+        h[(0, 0)] = 0.5;
+        let keep = constrained(&h);
+        assert!((keep[(0, 0)]).abs() < 1e-12 && (keep[(1, 1)] - 1.0).abs() < 1e-12);
+        h[(0, 0)] = 10.0;
+        assert_eq!(constrained(&h), Matrix3::identity());
+        // Rotated by 30 degrees, the corridor's axis is found as such.
+        let (c, s) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
+        let r = Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
+        let mut h = Matrix3::zeros();
+        h[(1, 1)] = 100.0;
+        h[(2, 2)] = 5.0;
+        let keep = constrained(&(r * h * r.transpose()));
+        let axis = Vector3::new(c, s, 0.0);
+        assert!((keep * axis).norm() < 1e-9, "{keep}");
+        let across = Vector3::new(-s, c, 0.0);
+        assert!((keep * across - across).norm() < 1e-9, "{keep}");
     }
 
     #[test]

@@ -228,6 +228,9 @@ pub enum Doubt {
     /// Matches that paired far fewer of their points than the recent ones: scans that fit the
     /// local map only in part.
     Weak = 2,
+    /// Poses only the widest search reached, far from the odometry's prediction, on a match
+    /// that is ambiguous or weak: a glitch of the odometry, or scans from elsewhere.
+    Jump = 3,
 }
 
 /// A doubtful stretch: scans `first..=last`.
@@ -443,6 +446,8 @@ pub fn run(
     // match needs (on Freiburg 079 most scans see beyond the local map and go on to the search).
     let direct_icp = IcpParams {
         abandon_below: params.direct_overlap,
+        // From the prediction, a corridor's axis is the odometry's (docs §F.1).
+        degenerate_to_prior: true,
         ..icp.clone()
     };
 
@@ -450,6 +455,8 @@ pub fn run(
     let mut steps = vec![Step::Direct; n];
     // Per scan: the share of its points its match paired with the local map (NaN: none).
     let mut overlap = vec![f64::NAN; n];
+    // Per scan: placed by a doubtful jump (`Doubt::Jump`).
+    let mut jumps = vec![false; n];
     // Per scan: (keyframe index, offset from it) for non-keyframes.
     let mut riders: Vec<(usize, Pose2)> = vec![(0, Pose2::IDENTITY); n];
     let mut step_information = vec![diagonal(fallback); n];
@@ -468,6 +475,7 @@ pub fn run(
     // The odometry's motion since the last matched scan, and since the last keyframe.
     let mut since_match = Motion::default();
     let mut since_keyframe = Motion::default();
+    let mut recent_overlap = RecentOverlap::default();
 
     for k in 0..n {
         let odo_step = if k == 0 {
@@ -490,10 +498,20 @@ pub fn run(
         if let Some(map) = local.as_mut() {
             if scan.len() >= 10 {
                 let window = params.local_window_after(since_match);
-                let (found, how, paired) =
-                    match_local(map, scan, predicted, window, params, &icp, &direct_icp)?;
+                let prediction = Prediction {
+                    pose: predicted,
+                    information: info,
+                    window,
+                    overlap: recent_overlap.median(),
+                };
+                let (found, how, paired, jumped) =
+                    match_local(map, scan, &prediction, params, &icp, &direct_icp)?;
                 step = how;
                 overlap[k] = paired;
+                jumps[k] = jumped;
+                if how.matched() && !paired.is_nan() {
+                    recent_overlap.push(paired);
+                }
                 if let Some((p, cov)) = found {
                     pose = p;
                     info = information_of(&cov, fallback);
@@ -553,8 +571,13 @@ pub fn run(
         // Loop closures against finished submaps near the estimate.
         if kf % params.loop_every == 0 && scan.len() >= 10 && step.matched() {
             let sparse = search_points(scan, params);
+            // A closure pairs as much of the scan as the local matches do here, up to
+            // `loop_min_overlap`.
+            let loop_overlap = recent_overlap
+                .median()
+                .map_or(params.loop_min_overlap, |m| m.min(params.loop_min_overlap));
             for sm in submaps.iter_mut() {
-                if kf < sm.origin + 2 * params.submap_keyframes {
+                if kf < sm.origin + params.submap_keyframes + params.local_keyframes {
                     continue; // the last submaps: their match is the local map's, not a loop
                 }
                 let origin = &keyframes[sm.origin];
@@ -589,7 +612,7 @@ pub fn run(
                 let refined = reference.icp(scan, found.pose, &loop_icp);
                 let jump = Pose2::from_array(found.pose).between(Pose2::from_array(refined.pose));
                 if !(refined.ok
-                    && refined.overlap >= params.loop_min_overlap
+                    && refined.overlap >= loop_overlap
                     && jump.translation_len() <= 2.0 * params.loop_resolution
                     && jump.theta.abs() <= 3f64.to_radians())
                 {
@@ -705,6 +728,7 @@ pub fn run(
     }
     let mut doubtful = unmatched_stretches(&steps, odometry, params);
     doubtful.extend(weak_stretches(&steps, &overlap, odometry, params));
+    doubtful.extend(jump_stretches(&jumps));
     doubtful.extend(contradicted_stretches(
         &keyframes,
         &kf_edges,
@@ -725,20 +749,36 @@ pub fn run(
     })
 }
 
+/// What the odometry says of a scan before it is matched: its pose, the odometry's information
+/// since the last match, the search window that motion asks for, and the share of their scans
+/// the recent matches paired (their median, once known).
+struct Prediction {
+    pose: Pose2,
+    information: [[f64; 3]; 3],
+    window: Window,
+    overlap: Option<f64>,
+}
+
 /// Matches `scan` against the local map from `predicted`: ICP from the prediction when it
 /// holds well inside the window, else the correlative search over the window (ambiguous when a
-/// distinct pose scores about as well), refined by ICP. The pose and covariance when matched.
+/// distinct pose scores about as well), refined by ICP. The pose and covariance when matched,
+/// how, the share of the scan paired, and whether the pose is a doubtful jump (`Doubt::Jump`).
 #[allow(clippy::type_complexity)]
 fn match_local(
     map: &mut LocalMap,
     scan: &[Point],
-    predicted: Pose2,
-    window: Window,
+    prediction: &Prediction,
     params: &SlamParams,
     icp: &IcpParams,
     direct_icp: &IcpParams,
-) -> Result<(Option<(Pose2, [[f64; 3]; 3])>, Step, f64)> {
-    let direct = map.reference.icp(scan, to_array(predicted), direct_icp);
+) -> Result<(Option<(Pose2, [[f64; 3]; 3])>, Step, f64, bool)> {
+    let (predicted, window) = (prediction.pose, prediction.window);
+    let direct = map.reference.icp_with_prior(
+        scan,
+        to_array(predicted),
+        Some((to_array(predicted), &prediction.information)),
+        direct_icp,
+    );
     let moved = predicted.between(Pose2::from_array(direct.pose));
     let half = Window {
         linear: 0.5 * window.linear,
@@ -749,6 +789,7 @@ fn match_local(
             Some((Pose2::from_array(direct.pose), direct.covariance)),
             Step::Direct,
             direct.overlap,
+            false,
         ));
     }
     if map.grid.is_none() {
@@ -796,22 +837,27 @@ fn match_local(
         let start = ranked.best.pose;
         let refined = map.reference.icp(scan, start, icp);
         let moved = Pose2::from_array(start).between(Pose2::from_array(refined.pose));
-        if refined.ok && within(moved, params.local_window) {
-            return Ok((
-                Some((Pose2::from_array(refined.pose), refined.covariance)),
-                how,
-                refined.overlap,
-            ));
-        }
-        if ranked.best.score >= params.unrefined_score {
+        let found = if refined.ok && within(moved, params.local_window) {
+            (Pose2::from_array(refined.pose), refined.covariance)
+        } else if ranked.best.score >= params.unrefined_score {
             // The search's own pose, known to its lattice: a cell and a rotation step.
             let r = params.local_resolution;
             let a = 2f64.to_radians();
             let cov = [[r * r, 0.0, 0.0], [0.0, r * r, 0.0], [0.0, 0.0, a * a]];
-            return Ok((Some((Pose2::from_array(start), cov)), how, refined.overlap));
-        }
+            (Pose2::from_array(start), cov)
+        } else {
+            continue;
+        };
+        // A pose only the widest window reached says the odometry jumped; on a match that is
+        // not clear (ambiguous, or pairing under half what matches here pair) it is doubtful.
+        let jump = i > 0 && !within(predicted.between(found.0), window);
+        let weak = prediction
+            .overlap
+            .is_some_and(|q| refined.overlap < params.weak * q);
+        let doubtful_jump = jump && (ranked.runner_up.is_some() || weak);
+        return Ok((Some(found), how, refined.overlap, doubtful_jump));
     }
-    Ok((None, Step::Failed, 0.0))
+    Ok((None, Step::Failed, 0.0, false))
 }
 
 /// Loop closure candidates waiting for the group test: those found since the last test.
@@ -860,6 +906,22 @@ impl Groups {
     }
 }
 
+/// Runs of scans placed by doubtful jumps.
+fn jump_stretches(jumps: &[bool]) -> Vec<Doubtful> {
+    let mut out: Vec<Doubtful> = Vec::new();
+    for (k, _) in jumps.iter().enumerate().filter(|(_, &j)| j) {
+        match out.last_mut() {
+            Some(last) if last.last + 1 == k => last.last = k,
+            _ => out.push(Doubtful {
+                first: k,
+                last: k,
+                why: Doubt::Jump,
+            }),
+        }
+    }
+    out
+}
+
 /// Runs of scans that could not be matched, over at least a keyframe's worth of odometry
 /// motion (a shorter run is re-anchored by the next match against the same local map).
 fn unmatched_stretches(steps: &[Step], odometry: &[Pose2], params: &SlamParams) -> Vec<Doubtful> {
@@ -899,7 +961,7 @@ fn weak_stretches(
     params: &SlamParams,
 ) -> Vec<Doubtful> {
     let mut out = Vec::new();
-    let mut recent: std::collections::VecDeque<f64> = std::collections::VecDeque::new();
+    let mut recent = RecentOverlap::default();
     let mut run: Option<(usize, usize, usize)> = None; // (first, last, weak scans)
     let mut close = |run: &mut Option<(usize, usize, usize)>| {
         if let Some((first, last, count)) = run.take() {
@@ -922,10 +984,7 @@ fn weak_stretches(
         if !step.matched() || q.is_nan() {
             continue;
         }
-        if recent.len() >= WEAK_WINDOW / 2 {
-            let mut sorted: Vec<f64> = recent.iter().copied().collect();
-            sorted.sort_by(f64::total_cmp);
-            let median = sorted[sorted.len() / 2];
+        if let Some(median) = recent.median() {
             if q < params.weak * median {
                 run = Some(match run {
                     Some((first, _, count)) => (first, k, count + 1),
@@ -935,10 +994,7 @@ fn weak_stretches(
             }
         }
         close(&mut run);
-        recent.push_back(q);
-        if recent.len() > WEAK_WINDOW {
-            recent.pop_front();
-        }
+        recent.push(q);
     }
     close(&mut run);
     out
@@ -946,6 +1002,31 @@ fn weak_stretches(
 
 const WEAK_RUN: usize = 3;
 const WEAK_WINDOW: usize = 50;
+
+/// The shares of their scans that the last `WEAK_WINDOW` matches paired. Their median is what a
+/// match pairs in this place with this laser: most of the scan in an office, a third where the
+/// beams are sparse and the walls far.
+#[derive(Default)]
+struct RecentOverlap(std::collections::VecDeque<f64>);
+
+impl RecentOverlap {
+    fn push(&mut self, q: f64) {
+        self.0.push_back(q);
+        if self.0.len() > WEAK_WINDOW {
+            self.0.pop_front();
+        }
+    }
+
+    /// The median, once half the window is filled.
+    fn median(&self) -> Option<f64> {
+        if self.0.len() < WEAK_WINDOW / 2 {
+            return None;
+        }
+        let mut sorted: Vec<f64> = self.0.iter().copied().collect();
+        sorted.sort_by(f64::total_cmp);
+        Some(sorted[sorted.len() / 2])
+    }
+}
 
 /// Stretches between keyframes whose matched step the final solve moved by more than
 /// `params.contradiction` (merged when adjacent).
