@@ -187,7 +187,9 @@ def test_where_the_scans_contradict_one_stretch_of_the_path_the_alignment_is_ref
     ]
     lo, hi, k, window = figures
     assert hi - lo == window == LOCAL_STEPS
-    assert lo < 260 and hi > 200, (lo, hi)  # the stretch named overlaps the planted one
+    # The stretch named overlaps the planted one.
+    assert lo < 260, (lo, hi)
+    assert hi > 200, (lo, hi)
     assert k > config.align_max_contradicted_local * window
     # Opened too, it lets the alignment through.
     with Session.new(scenario.map, config=config.replace(align_max_contradicted_local=1.0)) as s:
