@@ -306,6 +306,8 @@ struct Submap {
     reference: Option<Reference>,
     /// Its keyframes' positions in its frame.
     path: Vec<Point>,
+    /// The path length at the last keyframe a solved loop closure holds it to (0: none).
+    tied: f64,
 }
 
 struct Keyframe {
@@ -581,7 +583,8 @@ pub fn run(
                     continue; // the last submaps: their match is the local map's, not a loop
                 }
                 let origin = &keyframes[sm.origin];
-                let since = (travelled - origin.travelled).max(0.0);
+                // The path since the submap, or since the last closure the solve holds it to.
+                let since = (travelled - origin.travelled.max(sm.tied)).max(0.0);
                 let window = Window {
                     linear: (params.loop_window.linear + params.loop_growth * since)
                         .min(params.loop_max_linear),
@@ -634,6 +637,13 @@ pub fn run(
             if groups.test(&keyframes, &mut loops, params) {
                 optimize_keyframes(&mut keyframes, &kf_edges, &mut loops, params)?;
                 poses[k] = keyframes[kf].pose;
+                // The solve holds each submap to the keyframes it closed on: from there on its
+                // relative pose drifts with the path since then, not since the submap.
+                for l in loops.iter().filter(|l| l.weight >= 0.5) {
+                    if let Some(sm) = submaps.iter_mut().find(|sm| sm.origin == l.from) {
+                        sm.tied = sm.tied.max(keyframes[l.to].travelled);
+                    }
+                }
             }
             since_optimize = 0;
         }
@@ -712,6 +722,7 @@ pub fn run(
                 normals,
                 reference: None,
                 path,
+                tied: 0.0,
             });
         }
         if k % 500 == 0 {
