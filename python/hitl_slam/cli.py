@@ -44,8 +44,9 @@ examples:
 The output map's poses are the front end's; its factors are the matched steps between
 consecutive scans and the loop closures the final solve kept. The summary line starts with the
 front end's verdict: "good map", or "DOUBTFUL map" with the stretches of scans to look at first
-(scans it could not match, matches far weaker than the ones before them, or steps the final
-solve bent away from their matches; docs/ALGORITHM.md §F.5). A doubtful map is still written:
+(scans it could not match, matches far weaker than the ones before them, scans placed far from
+the odometry by an unclear match, or steps the final solve bent away from their matches;
+docs/ALGORITHM.md §F.5). A doubtful map is still written:
 it is the starting point to repair (`hitl-slam serve OUT.hitl` shows those stretches). The
 summary also counts unmatched and ambiguous scans, keyframes, loop closures accepted, rejected
 and set aside as inconsistent with the others found with them, and the speed against the log's
