@@ -78,9 +78,6 @@ pub struct IcpParams {
     /// points pair (0: never): a match that will not reach a share it is asked for is not
     /// iterated to the end.
     pub abandon_below: f64,
-    /// With a prior: a degenerate translation direction of the scan (`DEGENERATE`) is left to
-    /// the prior alone.
-    pub degenerate_to_prior: bool,
 }
 
 impl Default for IcpParams {
@@ -97,7 +94,6 @@ impl Default for IcpParams {
             min_pairs: 25,
             sigma_floor: [0.02, 1.0f64.to_radians()],
             abandon_below: 0.0,
-            degenerate_to_prior: false,
         }
     }
 }
@@ -215,26 +211,25 @@ impl Reference {
         self.icp_with_prior(current, start, None, p)
     }
 
-    /// [`Reference::icp`] with a Gaussian prior on the pose, `prior = (mean, information)`
-    /// (world frame, x y theta): where the scan does not constrain the pose (along a corridor
-    /// whose ends are out of range) the pose goes to the prior's mean instead of sliding on the
-    /// residuals' noise. With `degenerate_to_prior`, degenerate translation directions
-    /// (`DEGENERATE`) are left to the prior alone. The covariance returned is the scan's own, without the prior (the caller's
-    /// graph holds the odometry).
+    /// [`Reference::icp`] with a Gaussian prior on the pose centred on `start`, `information`
+    /// its information (world frame, x y theta): a translation direction the scan does not
+    /// constrain (`DEGENERATE`: along a corridor whose ends are out of range) is left to the
+    /// prior alone, so the pose stays at `start` along it instead of sliding on the residuals'
+    /// noise. The covariance returned is the scan's own, without the prior (the caller's graph
+    /// holds the odometry).
     pub fn icp_with_prior(
         &self,
         current: &[[f64; 2]],
         start: [f64; 3],
-        prior: Option<([f64; 3], &[[f64; 3]; 3])>,
+        information: Option<&[[f64; 3]; 3]>,
         p: &IcpParams,
     ) -> ScanMatch {
-        let mean = prior.map_or(start, |(m, _)| m);
-        let prior = prior.map(|(_, m)| Matrix3::from_fn(|i, j| m[i][j]));
+        let prior = information.map(|m| Matrix3::from_fn(|i, j| m[i][j]));
         let offset = |pose: [f64; 3]| {
             Vector3::new(
-                pose[0] - mean[0],
-                pose[1] - mean[1],
-                wrap_angle(pose[2] - mean[2]),
+                pose[0] - start[0],
+                pose[1] - start[1],
+                wrap_angle(pose[2] - start[2]),
             )
         };
         let mut pose = start;
@@ -286,11 +281,7 @@ impl Reference {
             }
             let (a, b) = match prior {
                 Some(prior) => {
-                    let keep = if p.degenerate_to_prior {
-                        constrained(&h)
-                    } else {
-                        Matrix3::identity()
-                    };
+                    let keep = constrained(&h);
                     let (h, g) = (keep * h * keep, keep * g);
                     (
                         h / RESIDUAL_VARIANCE + prior,
@@ -487,27 +478,25 @@ mod tests {
             search: 0.0,
             max_pair_distance: 0.3,
             min_pair_distance: 0.05,
-            degenerate_to_prior: true,
             ..IcpParams::default()
         };
-        // The scan: the corridor's middle 6 m seen from (0.0, 0.05), started 0.02 m off across
-        // and 0.15 m off along the axis (where the points cannot tell).
+        // The scan: the corridor's middle 6 m seen from (0.0, 0.05), started (and the prior
+        // centred) 0.02 m off across and 0.02 m off along the axis, where the points cannot tell.
         let scan: Vec<[f64; 2]> = corridor()
             .into_iter()
             .filter(|q| q[0].abs() <= 3.0)
             .map(|q| [q[0], q[1] - 0.05])
             .collect();
-        let start = [0.15, 0.07, 0.0];
-        let prior_mean = [0.02, 0.0, 0.0];
+        let start = [0.02, 0.07, 0.0];
         let information = [[400.0, 0.0, 0.0], [0.0, 400.0, 0.0], [0.0, 0.0, 800.0]];
-        let m = walls.icp_with_prior(&scan, start, Some((prior_mean, &information)), &p);
+        let m = walls.icp_with_prior(&scan, start, Some(&information), &p);
         assert!(m.ok, "{m:?}");
         assert!(
             (m.pose[1] - 0.05).abs() < 0.01,
             "across the axis the scan decides: {m:?}"
         );
         assert!(
-            (m.pose[0] - prior_mean[0]).abs() < 0.01,
+            (m.pose[0] - start[0]).abs() < 0.01,
             "along it the prior: {m:?}"
         );
         // The Hessian's projection: a corridor's drops the axis, a room's keeps both.

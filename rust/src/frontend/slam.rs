@@ -448,8 +448,6 @@ pub fn run(
     // match needs (on Freiburg 079 most scans see beyond the local map and go on to the search).
     let direct_icp = IcpParams {
         abandon_below: params.direct_overlap,
-        // From the prediction, a corridor's axis is the odometry's (docs §F.1).
-        degenerate_to_prior: true,
         ..icp.clone()
     };
 
@@ -504,7 +502,7 @@ pub fn run(
                     pose: predicted,
                     information: info,
                     window,
-                    overlap: recent_overlap.median(),
+                    recent: &recent_overlap,
                 };
                 let (found, how, paired, jumped) =
                     match_local(map, scan, &prediction, params, &icp, &direct_icp)?;
@@ -640,8 +638,9 @@ pub fn run(
                 // The solve holds each submap to the keyframes it closed on: from there on its
                 // relative pose drifts with the path since then, not since the submap.
                 for l in loops.iter().filter(|l| l.weight >= 0.5) {
-                    if let Some(sm) = submaps.iter_mut().find(|sm| sm.origin == l.from) {
-                        sm.tied = sm.tied.max(keyframes[l.to].travelled);
+                    // Submaps are in the order of their origins.
+                    if let Ok(i) = submaps.binary_search_by_key(&l.from, |sm| sm.origin) {
+                        submaps[i].tied = submaps[i].tied.max(keyframes[l.to].travelled);
                     }
                 }
             }
@@ -761,13 +760,13 @@ pub fn run(
 }
 
 /// What the odometry says of a scan before it is matched: its pose, the odometry's information
-/// since the last match, the search window that motion asks for, and the share of their scans
-/// the recent matches paired (their median, once known).
-struct Prediction {
+/// since the last match (the direct match's prior, docs §F.1), the search window that motion
+/// asks for, and what the recent matches paired.
+struct Prediction<'a> {
     pose: Pose2,
     information: [[f64; 3]; 3],
     window: Window,
-    overlap: Option<f64>,
+    recent: &'a RecentOverlap,
 }
 
 /// Matches `scan` against the local map from `predicted`: ICP from the prediction when it
@@ -778,7 +777,7 @@ struct Prediction {
 fn match_local(
     map: &mut LocalMap,
     scan: &[Point],
-    prediction: &Prediction,
+    prediction: &Prediction<'_>,
     params: &SlamParams,
     icp: &IcpParams,
     direct_icp: &IcpParams,
@@ -787,7 +786,7 @@ fn match_local(
     let direct = map.reference.icp_with_prior(
         scan,
         to_array(predicted),
-        Some((to_array(predicted), &prediction.information)),
+        Some(&prediction.information),
         direct_icp,
     );
     let moved = predicted.between(Pose2::from_array(direct.pose));
@@ -862,10 +861,12 @@ fn match_local(
         // A pose only the widest window reached says the odometry jumped; on a match that is
         // not clear (ambiguous, or pairing under half what matches here pair) it is doubtful.
         let jump = i > 0 && !within(predicted.between(found.0), window);
-        let weak = prediction
-            .overlap
-            .is_some_and(|q| refined.overlap < params.weak * q);
-        let doubtful_jump = jump && (ranked.runner_up.is_some() || weak);
+        let doubtful_jump = jump
+            && (ranked.runner_up.is_some()
+                || prediction
+                    .recent
+                    .median()
+                    .is_some_and(|q| refined.overlap < params.weak * q));
         return Ok((Some(found), how, refined.overlap, doubtful_jump));
     }
     Ok((None, Step::Failed, 0.0, false))
