@@ -9,7 +9,7 @@ reader. Meant to run as
 
     python benches/frontend_testbed.py --write benches/README.md
 
-(the whole bed: 44 runs, about an hour of CPU on one core). Pieces of it:
+(the whole bed: 64 runs, about an hour of CPU on one core). Pieces of it:
 
     python benches/frontend_testbed.py --logs intel --variants raw,every5,bias3
     python benches/frontend_testbed.py --logs seattle,orebro --json rows.json
@@ -17,8 +17,8 @@ reader. Meant to run as
 
 Logs (`--logs`, comma list): intel, fr079 (raw logs with relations), seattle, orebro,
 belgioioso, edmonton (corrected logs, made raw). Variants (`--variants`, comma list; default:
-all on intel and fr079, `raw,ros1,ros2` on the corrected logs; an explicit list applies to
-every log given, and `raw` is always run, as the baseline of the ratios):
+all the raw logs' on intel and fr079, all the corrected logs' on the others; an explicit list
+applies to every log given it fits, and `raw` is always run, as the baseline of the ratios):
 
     raw             the log as read (the corrected logs: made raw, see below)
     every2/3/5      scans 0, k, 2k, ... only (the others are dropped, with their odometry)
@@ -31,6 +31,13 @@ every log given, and `raw` is always run, as the baseline of the ratios):
     float32         every point moved along its beam to r = float32(r)
     noise5mm-s0..s4 every point moved along its beam by N(0, 5 mm), numpy seed 0..4
                     (`noise5mm` names all five)
+    damage-s1..s4   (the corrected logs) made raw with numpy seed 1..4 instead of 0: the same
+                    damage model, other wheels (`damage` names all four); the ATE target holds
+                    for each, and the table gives worst/best over the five seeds
+    reference-odometry
+                    (the corrected logs) the corrected poses themselves as the odometry: what
+                    the matching alone leaves against the reference, which is another SLAM
+                    system's estimate, not ground truth (a diagnostic, no target)
     ros1, ros2      the unmodified scans and odometry written as a ROS 1 bag / a ROS 2 bag
                     (sqlite3) with rosbags' writers (/tf odom -> base_link, the laser at
                     base_link), read back with load_map; a log
@@ -109,7 +116,10 @@ VARIANTS = (
     *NOISE_SEEDS,
     *BAGS,
 )
-CORRECTED_DEFAULT = ("raw", *BAGS)
+DAMAGE_SEEDS = tuple(f"damage-s{k}" for k in range(1, 5))
+REFERENCE_ODOMETRY = "reference-odometry"
+CORRECTED_VARIANTS = ("raw", *DAMAGE_SEEDS, REFERENCE_ODOMETRY, *BAGS)
+CORRECTED_DEFAULT = CORRECTED_VARIANTS
 
 # The corrected logs made raw: a wheel odometer worse than the project's default one (2 % of
 # the distance, 5 % of the rotation and 1 degree per metre of heading noise per step) with a
@@ -229,10 +239,12 @@ def make_variant(m: Map, variant: str) -> tuple[Map, NDArray[np.int64], dict[str
     raise ValueError(f"unknown variant {variant!r}")
 
 
-def base_map(key: str, max_scans: int | None) -> tuple[Map, NDArray[np.float64] | None, Any]:
-    """The log's map with odometry poses (a corrected log: made raw), cropped to its first
-    ``max_scans`` scans; the corrected poses (None for a raw log); the uncropped log's
-    timestamps (relations are matched to the whole log's scans)."""
+def base_map(
+    key: str, max_scans: int | None, seed: int = MADE_RAW_SEED
+) -> tuple[Map, NDArray[np.float64] | None, Any]:
+    """The log's map with odometry poses (a corrected log: made raw with numpy seed ``seed``),
+    cropped to its first ``max_scans`` scans; the corrected poses (None for a raw log); the
+    uncropped log's timestamps (relations are matched to the whole log's scans)."""
     from hitl_slam.io.carmen import read_carmen
     from hitl_slam.sim.odometry import HeadingDrift, OdometryNoise, odometry
 
@@ -250,7 +262,7 @@ def base_map(key: str, max_scans: int | None) -> tuple[Map, NDArray[np.float64] 
         k_theta_t=math.radians(MADE_RAW_K_THETA_T_DEG),
     )
     drift = HeadingDrift(0, m.num_poses, math.radians(MADE_RAW_DRIFT_DEG))
-    raw = odometry(truth, np.random.default_rng(MADE_RAW_SEED), noise, [drift])
+    raw = odometry(truth, np.random.default_rng(seed), noise, [drift])
     return _subset(m, np.arange(m.num_poses, dtype=np.int64), raw), truth, whole
 
 
@@ -376,7 +388,19 @@ def run_one(key: str, variant: str, max_scans: int | None, bag: str | None) -> d
         # log, for the scoring, after it.
         run_map = load_map(bag)
         base = truth = whole = None
+    elif log.relations is None:
+        # A corrected log: made raw at another damage seed, or with its corrected poses as the
+        # odometry (what the matching alone leaves against the reference).
+        seed = int(variant.removeprefix("damage-s")) if variant in DAMAGE_SEEDS else MADE_RAW_SEED
+        base, truth, whole = base_map(key, max_scans, seed)
+        own = variant in DAMAGE_SEEDS or variant == REFERENCE_ODOMETRY
+        run_map, keep, notes = make_variant(base, "raw" if own else variant)
+        if variant == REFERENCE_ODOMETRY:
+            assert truth is not None
+            run_map = _subset(base, keep, truth)
     else:
+        if variant in DAMAGE_SEEDS or variant == REFERENCE_ODOMETRY:
+            raise SystemExit(f"variant {variant!r} is for the corrected logs, not {key}")
         base, truth, whole = base_map(key, max_scans)
         run_map, keep, notes = make_variant(base, variant)
     wall, cpu = time.perf_counter(), time.process_time()
@@ -510,6 +534,8 @@ def _plan(logs: Sequence[str], variants: Sequence[str] | None) -> list[Job]:
             chosen = list(VARIANTS if LOGS[key].relations is not None else CORRECTED_DEFAULT)
         else:
             chosen = ["raw", *[v for v in variants if v != "raw"]]
+            if LOGS[key].relations is not None:  # the corrected logs' own variants: not here
+                chosen = [v for v in chosen if v not in (*DAMAGE_SEEDS, REFERENCE_ODOMETRY)]
         jobs += [Job(key, v) for v in chosen]
     return jobs
 
@@ -540,15 +566,18 @@ def _ratios(rows: list[dict[str, Any]]) -> None:
         else:
             r["baseline"] = base["error"]
             r["ratio"] = r["error"] / base["error"] if base["error"] > 0 else None
-    by_log: dict[str, list[float]] = {}
-    for r in rows:
-        if r["variant"] in NOISE_SEEDS and "failed" not in r:
-            by_log.setdefault(r["log"], []).append(r["error"])
-    for r in rows:
-        seeds = by_log.get(r["log"], [])
-        if r["variant"] in NOISE_SEEDS and len(seeds) > 1 and min(seeds) > 0:
-            r["spread"] = max(seeds) / min(seeds)
-            r["seeds"] = len(seeds)
+    # The noise seeds' spread, and the damage seeds' (the raw run is damage seed 0).
+    for family, with_raw in ((NOISE_SEEDS, False), (DAMAGE_SEEDS, True)):
+        by_log: dict[str, list[float]] = {}
+        for r in rows:
+            seed_zero = with_raw and r["variant"] == "raw" and r.get("score") == "ate"
+            if "failed" not in r and (r["variant"] in family or seed_zero):
+                by_log.setdefault(r["log"], []).append(r["error"])
+        for r in rows:
+            seeds = by_log.get(r["log"], [])
+            if r["variant"] in family and len(seeds) > 1 and min(seeds) > 0:
+                r["spread"] = max(seeds) / min(seeds)
+                r["seeds"] = len(seeds)
 
 
 def _checks(r: dict[str, Any]) -> str:
@@ -558,7 +587,9 @@ def _checks(r: dict[str, Any]) -> str:
     failed = []
     if not r["scored"]:
         failed.append("nothing scored")
-    elif variant == "raw":
+    elif variant == REFERENCE_ODOMETRY:
+        failed = []  # a diagnostic: no target
+    elif variant == "raw" or variant in DAMAGE_SEEDS:
         what = "ATE" if r["score"] == "ate" else "translation"
         if not r["error"] <= log.target:
             failed.append(f"{what} {r['error']:.4f} > {log.target:g} m")
@@ -577,6 +608,8 @@ def _checks(r: dict[str, Any]) -> str:
     if r["real_time"] is not None and r["real_time"] < REAL_TIME:
         failed.append(f"real time {r['real_time']:.0f}x < {REAL_TIME:.0f}x")
     verdict = "FAIL: " + "; ".join(failed) if failed else "PASS"
+    if variant == REFERENCE_ODOMETRY:
+        verdict = "(no target)" if not failed else verdict
     return verdict + (" (cropped)" if r.get("cropped") else "")
 
 
@@ -745,8 +778,9 @@ def _names(text: str, known: Sequence[str], what: str) -> list[str]:
     for name in (t.strip() for t in text.split(",")):
         if not name:
             continue
-        if name == "noise5mm" and what == "variant":
-            out += [v for v in NOISE_SEEDS if v not in out]
+        if name in ("noise5mm", "damage") and what == "variant":
+            family = NOISE_SEEDS if name == "noise5mm" else DAMAGE_SEEDS
+            out += [v for v in family if v not in out]
             continue
         if name not in known:
             raise SystemExit(f"unknown {what} {name!r}; known: {', '.join(known)}")
@@ -784,7 +818,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     import compare_gtsam as shared
 
     logs = _names(args.logs, list(LOGS), "log")
-    variants = None if args.variants is None else _names(args.variants, VARIANTS, "variant")
+    known = [*VARIANTS, *DAMAGE_SEEDS, REFERENCE_ODOMETRY]
+    variants = None if args.variants is None else _names(args.variants, known, "variant")
     present = []
     for key in logs:
         if (LASER / LOGS[key].file).is_file():
