@@ -33,6 +33,7 @@ from hitl_slam.corrections_file import Apply, read_corrections
 from hitl_slam.errors import CorrectionRejected, InputError, SolverError
 from hitl_slam.journal import SCHEMA_VERSION, EventKind, Journal, read_journal
 from hitl_slam.map import Map
+from hitl_slam.odometry_check import STORED_KEYS
 from hitl_slam.session import EntryStatus, Session
 
 TESTS = Path(__file__).resolve().parent
@@ -190,7 +191,11 @@ def test_new_session_stores_the_map_and_config_exactly(tmp_path: Path) -> None:
     assert stored.information_source.tobytes() == the_map.information_source.tobytes()
     assert stored.normals is None
     assert (stored.name, stored.source, stored.anchor) == ("tiny", "tiny.covars", 0)
-    assert stored.metadata == {"origin": {"robot": "cobot", "when": 3}}
+    # The map's own metadata, and the outcome of the odometry check made as the session started
+    # (stored with the map so that no reopen matches the scans again).
+    own = {k: v for k, v in stored.metadata.items() if k not in STORED_KEYS}
+    assert own == {"origin": {"robot": "cobot", "when": 3}}
+    assert sorted(set(stored.metadata) - set(own)) == sorted(STORED_KEYS)
     assert rows(path, "PRAGMA user_version") == [(SCHEMA_VERSION,)]
     assert rows(path, "PRAGMA journal_mode") == [("delete",)]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.hitl"]
@@ -617,6 +622,43 @@ def test_newer_schema_is_refused(tmp_path: Path) -> None:
     )
     assert "upgrade" in message
     assert message.startswith(str(path))
+
+
+def test_a_session_saved_with_a_removed_option_opens_if_it_was_off(tmp_path: Path) -> None:
+    """An option measured and not kept is deleted from Config; a session saved before that names
+    it. With the value it had when off the file opens as it was; with another it is refused,
+    naming the option (this version cannot reproduce what that session did)."""
+    path = tmp_path / "s.hitl"
+    config = DEFAULT.replace(sigma_h=0.07)
+    Session.new(tiny_map(), path, config).close()
+    (stored,) = rows(path, "SELECT json FROM config WHERE id = 1")[0]
+    off = {
+        "sigma_scan": 0.0,
+        "points_yield": False,
+        "pass_by_pass": False,
+        "colocation_even_centroids": False,
+        "colocation_length_rule": False,
+        "align_max_contradicted_local": 1.0,
+    }
+
+    def store(data: dict[str, Any]) -> None:
+        connection = sqlite3.connect(path)
+        connection.execute("UPDATE config SET json = ? WHERE id = 1", (json.dumps(data),))
+        connection.commit()
+        connection.close()
+        reseal(path)
+
+    store({**json.loads(stored), **off})
+    with Session.open(path) as session:
+        assert session.config == config
+    for name, on in [("sigma_scan", 0.01), ("points_yield", True), ("pass_by_pass", 0)]:
+        store({**json.loads(stored), **off, name: on})
+        with pytest.raises(InputError, match=f"config {name} was removed in this version"):
+            Session.open(path)
+    # A key this version never had is refused as before.
+    store({**json.loads(stored), "no_such_option": 1})
+    with pytest.raises(InputError, match="unknown config key"):
+        Session.open(path)
 
 
 def test_files_that_are_not_sessions_are_refused(tmp_path: Path) -> None:

@@ -8,6 +8,15 @@ Steps the scans cannot check (too little overlap, a featureless view) keep their
 
 The map itself is not changed: its poses stay the odometry's until a person corrects it; only
 where a correction's error goes is decided by the evidence.
+
+The scans are matched once per map, never per correction:
+- a map the front end built (``hitl-slam slam``) needs no matching: its chain edges are the scan
+  matches themselves, and the steps it could not match are listed in its metadata
+  (``front_end_steps``, one :class:`hitl_slam.slam.StepKind` per scan);
+- any other map is matched when a session starts on it (:func:`with_stored_check`), and the
+  outcome is kept in the map's metadata, so the session file holds it and a reopen reads it
+  (``odometry_check_*``, docs/FORMATS.md). It is used only while the map's scans, chain and
+  setting are those it was computed from (a fingerprint is stored with it).
 """
 
 from __future__ import annotations
@@ -16,6 +25,8 @@ import dataclasses
 import logging
 import math
 import weakref
+import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 
@@ -24,10 +35,18 @@ from numpy.typing import NDArray
 
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
+from hitl_slam.errors import InputError
 from hitl_slam.geometry import chain_steps, compose
 from hitl_slam.map import Map
 
-__all__ = ["OdometryCheck", "check_odometry", "checked_map", "unchecked_steps"]
+__all__ = [
+    "OdometryCheck",
+    "check_odometry",
+    "checked_map",
+    "stored_check",
+    "unchecked_steps",
+    "with_stored_check",
+]
 
 FloatArray = NDArray[np.float64]
 logger = logging.getLogger(__name__)
@@ -45,6 +64,21 @@ agree, and a loosely overlapping one that matched wrongly would veto a real faul
 30-degree jump: at 10% the jump went unconfirmed and the first correction left the walls 24
 degrees off)."""
 
+
+CHUNK = 500
+"""Consecutive scan pairs matched per call into the core, between two progress reports."""
+
+FRONT_END_STEPS = "front_end_steps"
+"""Metadata of a front-end map: how each scan was placed (``StepKind``, uint8 per scan)."""
+FAILED_STEP = 3  # StepKind.FAILED
+
+# The stored outcome of the check (metadata arrays, docs/FORMATS.md).
+STORED_SETTING = "odometry_check_setting"  # float64 (1,): Config.odometry_check it used
+STORED_MATCHED = "odometry_check_matched"  # bool (N - 1,): the steps the scans could check
+STORED_STEPS = "odometry_check_steps"  # int64 (R,): the steps whose turn is the scans'
+STORED_TURNS = "odometry_check_turns"  # float64 (R, 2): that turn [rad] and its variance
+STORED_FINGERPRINT = "odometry_check_fingerprint"  # int64 (3,): what it was computed from
+STORED_KEYS = (STORED_SETTING, STORED_MATCHED, STORED_STEPS, STORED_TURNS, STORED_FINGERPRINT)
 
 FUSE_OVERLAP = 0.5
 """A step is fused with its scan match only when at least half of the scan's points paired: the
@@ -118,7 +152,59 @@ def _turn_variance_replaced(odo_cov: FloatArray, variance: float) -> FloatArray:
     return np.asarray(np.linalg.inv(out), dtype=np.float64)
 
 
-def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
+def _match_chain(
+    map: Map, guesses: FloatArray, progress: Callable[[int, int], object] | None
+) -> tuple[NDArray[np.bool_], FloatArray, FloatArray, FloatArray]:
+    """Every scan k+1 matched against scan k from ``guesses[k]``, :data:`CHUNK` pairs per call
+    into the core (``progress(done, total)`` after each): (matched, found, covariances,
+    overlap)."""
+    steps = guesses.shape[0]
+    points = np.ascontiguousarray(map.points)
+    if progress is None or steps <= CHUNK:
+        out = _core.match_consecutive(points, map.offsets, guesses, min_overlap=MIN_OVERLAP)
+        if progress is not None:
+            progress(steps, steps)
+        return out
+    parts = []
+    for lo in range(0, steps, CHUNK):
+        hi = min(lo + CHUNK, steps)  # the pairs lo..hi-1: scans lo..hi
+        first, last = int(map.offsets[lo]), int(map.offsets[hi + 1])
+        parts.append(
+            _core.match_consecutive(
+                points[first:last],
+                np.ascontiguousarray(map.offsets[lo : hi + 2] - first),
+                np.ascontiguousarray(guesses[lo:hi]),
+                min_overlap=MIN_OVERLAP,
+            )
+        )
+        progress(hi, steps)
+    matched, found, cov, overlap = (np.concatenate([p[i] for p in parts]) for i in range(4))
+    return matched, found, cov, overlap
+
+
+def _front_end_steps(map: Map) -> NDArray[np.uint8] | None:
+    """The front end's per-scan step kinds of a map it built (None for any other map).
+
+    Raises:
+        InputError: the metadata is there but malformed."""
+    steps = map.metadata.get(FRONT_END_STEPS)
+    if steps is None:
+        return None
+    a = np.asarray(steps)
+    if a.shape != (map.num_poses,) or a.dtype.kind not in "ui" or (a.size and a.max() > 3):
+        raise InputError(
+            f"{map.name}: metadata {FRONT_END_STEPS} must hold one step kind (0-3) per scan "
+            f"({map.num_poses}), got shape {a.shape} and dtype {a.dtype}: the map is damaged; "
+            "run the front end again"
+        )
+    return a.astype(np.uint8)
+
+
+def check_odometry(
+    map: Map,
+    config: Config = DEFAULT,
+    progress: Callable[[int, int], object] | None = None,
+) -> OdometryCheck:
     """Matches every pair of consecutive scans and widens the heading information of the chain
     edges whose turn the scans contradict (squared Mahalanobis distance of the heading
     difference above ``config.odometry_check``, 1 dof): the heading variance grows by the
@@ -127,15 +213,27 @@ def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
     gyro, a wheel slip while turning) are the ones that bend a whole map. A step is widened only
     when the matches two steps apart across it confirm the fault (:func:`_confirmed`). A step
     whose scans agree with it (distance at most ``config.odometry_fuse``) takes the
-    information-weighted mean of both turns, with the fused variance."""
+    information-weighted mean of both turns, with the fused variance.
+
+    A map the front end built is not matched again: its chain edges are its scan matches, so
+    none is contradicted, and the steps it could not match are the unchecked ones.
+    ``progress(done, total)`` follows the matching."""
     rows = _chain_rows(map)
     guesses = chain_steps(map.poses)
     has_edge = rows >= 0
     guesses[has_edge] = map.measurements[rows[has_edge]]
     guesses = np.ascontiguousarray(guesses, dtype=np.float64)
-    matched, found, cov, overlap = _core.match_consecutive(
-        np.ascontiguousarray(map.points), map.offsets, guesses, min_overlap=MIN_OVERLAP
-    )
+    kinds = _front_end_steps(map)
+    if kinds is not None:
+        return OdometryCheck(
+            matched=kinds[1:] != FAILED_STEP,
+            scan_match=guesses,
+            distance2=np.where(kinds[1:] != FAILED_STEP, 0.0, math.nan),
+            relaxed=np.zeros(0, dtype=np.int64),
+            measurements=map.measurements,
+            information=map.information,
+        )
+    matched, found, cov, overlap = _match_chain(map, guesses, progress)
     info = map.information.copy()
     measurements = map.measurements.copy()
     distance2 = np.full(rows.shape[0], math.nan)
@@ -192,6 +290,114 @@ def check_odometry(map: Map, config: Config = DEFAULT) -> OdometryCheck:
     )
 
 
+def _fingerprint(map: Map) -> NDArray[np.int64]:
+    """CRC-32s of what the check reads: the scans (points, offsets) and the chain's edges
+    (measurements and information)."""
+    rows = _chain_rows(map)
+    rows = rows[rows >= 0]
+    parts = (
+        map.points,
+        map.offsets,
+        np.concatenate([map.measurements[rows].ravel(), map.information[rows].ravel()]),
+    )
+    return np.array([zlib.crc32(np.ascontiguousarray(a).data) for a in parts], dtype=np.int64)
+
+
+def _stored_arrays(map: Map, check: OdometryCheck, config: Config) -> dict[str, object]:
+    rows = check.relaxed
+    steps = map.edges[rows, 0].astype(np.int64)
+    variance = np.linalg.inv(check.information[rows])[:, 2, 2] if rows.size else np.zeros(0)
+    return {
+        STORED_SETTING: np.array([config.odometry_check], dtype=np.float64),
+        STORED_MATCHED: np.asarray(check.matched, dtype=bool),
+        STORED_STEPS: steps,
+        STORED_TURNS: np.stack([check.measurements[rows, 2], variance], axis=1).reshape(-1, 2),
+        STORED_FINGERPRINT: _fingerprint(map),
+    }
+
+
+def _stores(config: Config) -> bool:
+    """Whether the check's outcome under ``config`` is one that is stored: the check on, the
+    fusion off (a fused chain changes every agreeing step)."""
+    return config.odometry_check > 0 and config.odometry_fuse <= 0
+
+
+def with_stored_check(
+    map: Map,
+    config: Config = DEFAULT,
+    progress: Callable[[int, int], object] | None = None,
+) -> Map:
+    """``map`` with the outcome of :func:`check_odometry` in its metadata (docs/FORMATS.md), so
+    that whoever holds the map (a session file, a reopen) does not match its scans again.
+    ``map`` itself when nothing needs storing: a map the front end built, one with fewer than
+    two scans, the check off, or an outcome already stored for these scans, chain and setting.
+    ``progress(done, total)`` follows the matching."""
+    if (
+        not _stores(config)
+        or map.num_poses < 2
+        or _front_end_steps(map) is not None
+        or stored_check(map, config) is not None
+    ):
+        return map
+    check = check_odometry(map, config, progress)
+    metadata = dict(map.metadata)
+    metadata.update(_stored_arrays(map, check, config))
+    return dataclasses.replace(map, metadata=metadata)
+
+
+def stored_check(map: Map, config: Config = DEFAULT) -> tuple[Map, NDArray[np.bool_]] | None:
+    """The checked map and its unchecked steps from the outcome stored in ``map``'s metadata
+    (:func:`with_stored_check`), or None when there is none for this setting, or it was
+    computed from other scans or another chain (then the check is made again).
+
+    Raises:
+        InputError: the stored arrays are malformed (a damaged map)."""
+    md = map.metadata
+    present = [k for k in STORED_KEYS if k in md]
+    if not present or not _stores(config):
+        return None
+    n = map.num_poses
+    try:
+        if len(present) != len(STORED_KEYS):
+            raise ValueError(f"only {', '.join(present)} of {', '.join(STORED_KEYS)}")
+        setting = np.asarray(md[STORED_SETTING], dtype=np.float64)
+        matched = np.asarray(md[STORED_MATCHED])
+        steps = np.asarray(md[STORED_STEPS])
+        turns = np.asarray(md[STORED_TURNS], dtype=np.float64)
+        fingerprint = np.asarray(md[STORED_FINGERPRINT])
+        if setting.shape != (1,) or matched.shape != (n - 1,) or matched.dtype != bool:
+            raise ValueError("a setting and one flag per chain step expected")
+        if steps.ndim != 1 or steps.dtype.kind != "i" or turns.shape != (steps.size, 2):
+            raise ValueError("one turn and variance per re-measured step expected")
+        if steps.size and not (steps.min() >= 0 and steps.max() < n - 1):
+            raise ValueError("a re-measured step outside the chain")
+        if not (np.all(np.isfinite(turns)) and np.all(turns[:, 1] > 0)):
+            raise ValueError("a turn or variance that is not finite and positive")
+        if fingerprint.shape != (3,):
+            raise ValueError("a fingerprint of three checksums expected")
+    except (ValueError, TypeError) as exc:
+        raise InputError(
+            f"{map.name}: the stored odometry check is malformed ({exc}): the map is damaged; "
+            "load the original map again"
+        ) from None
+    if float(setting[0]) != config.odometry_check or not np.array_equal(
+        fingerprint, _fingerprint(map)
+    ):
+        return None
+    rows = _chain_rows(map)[steps]
+    if np.any(rows < 0):
+        return None
+    information = map.information.copy()
+    measurements = map.measurements.copy()
+    for row, (turn, variance) in zip(rows, turns, strict=True):
+        information[row] = _turn_variance_replaced(np.linalg.inv(map.information[row]), variance)
+        measurements[row, 2] = turn
+    out = dataclasses.replace(map, measurements=measurements, information=information)
+    unchecked = ~matched
+    unchecked.flags.writeable = False
+    return out, unchecked
+
+
 _CACHE: dict[int, tuple[weakref.ref[Map], tuple[float, float], Map, NDArray[np.bool_]]] = {}
 
 
@@ -208,9 +414,16 @@ def checked_map(map: Map, config: Config = DEFAULT) -> Map:
         return hit[2]
     derived = _derived_check(map, config)
     if derived is None:
+        derived = stored_check(map, config)
+    if derived is None:
         check = check_odometry(map, config)
-        out = dataclasses.replace(
-            map, measurements=check.measurements, information=check.information
+        same = check.measurements is map.measurements and check.information is map.information
+        out = (
+            map
+            if same
+            else dataclasses.replace(
+                map, measurements=check.measurements, information=check.information
+            )
         )
         unchecked = ~check.matched
         unchecked.flags.writeable = False

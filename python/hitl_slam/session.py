@@ -805,6 +805,7 @@ class Session:
         path: str | os.PathLike[str] | None = None,
         config: Config = DEFAULT,
         applier: Applier | None = None,
+        progress: Callable[[int, int], object] | None = None,
     ) -> Session:
         """Start a session on ``map`` journaled at ``path`` (a new file; ``None``: in memory).
 
@@ -812,11 +813,19 @@ class Session:
         A map the front end built lists its loop closures in its metadata; the ones it rejected
         start rejected (:attr:`loop_closures`).
 
+        The map's odometry is checked against its scans here, once, and the outcome stored with
+        the map (:func:`hitl_slam.odometry_check.with_stored_check`; a map the front end built
+        needs no check): no correction, and no reopen, matches scans again.
+        ``progress(done, total)`` follows that matching.
+
         Raises:
             InputError: ``path`` exists or cannot be written, or the map's loop closures are
                 malformed (nothing is written then).
         """
         LoopClosureTable.of(map)  # malformed loop closures are refused before anything is written
+        from hitl_slam.odometry_check import with_stored_check
+
+        map = with_stored_check(map, config, progress)
         journal = Journal.create(path, map, config)
         try:
             stored = journal.read_map()

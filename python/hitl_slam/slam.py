@@ -270,6 +270,9 @@ def slam(
     metadata["front_end"] = "hitl-slam"
     metadata["front_end_verdict"] = "doubtful" if doubtful else "good"
     metadata["front_end_doubtful"] = [d.as_dict() for d in doubtful]
+    # How each scan was placed: the odometry check reads its unmatched steps from here instead
+    # of matching the scans again (hitl_slam.odometry_check).
+    metadata["front_end_steps"] = np.ascontiguousarray(out["steps"], dtype=np.uint8)
     metadata.update(
         loop_closure_metadata(
             np.arange(n - 1, n - 1 + pairs.shape[0], dtype=np.int64),

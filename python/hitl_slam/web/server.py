@@ -119,6 +119,26 @@ def _front_end(
     )
 
 
+def _new_session(the_map: Map, path: Path) -> Session:
+    """:meth:`Session.new` of ``the_map`` at ``path``, showing on a terminal how far the check of
+    its odometry against its scans is (made once, when the session starts; a map the front end
+    built needs none)."""
+    import sys
+
+    if not sys.stderr.isatty():
+        return Session.new(the_map, path)
+    from tqdm import tqdm
+
+    with tqdm(desc="odometry check", unit="step", leave=False, file=sys.stderr) as bar:
+
+        def progress(done: int, total: int) -> None:
+            bar.total = total
+            bar.n = done
+            bar.refresh()
+
+        return Session.new(the_map, path, progress=progress)
+
+
 def _from_raw_log(
     source: Path,
     front_end: bool | None,
@@ -141,7 +161,7 @@ def _from_raw_log(
         own = own_slam_map(loaded)
         if front_end is True:
             return _front_end(source, odometry_map(loaded, options.odom_frame), progress, own)
-        session = Session.new(own, path)
+        session = _new_session(own, path)
         frames = trajectory_of(own).removeprefix("slam (").removesuffix(")")
         return session, (
             f"{source}: starting from the bag's own SLAM trajectory ({frames}, {own.num_poses} "
@@ -149,7 +169,7 @@ def _from_raw_log(
             f"{path} ({_describe(session)})"
         )
     if front_end is False:
-        session = Session.new(loaded, path)
+        session = _new_session(loaded, path)
         return session, (
             f"created the session {path} from {source} ({describe(loaded)}; {_describe(session)})"
         )
@@ -236,7 +256,7 @@ def open_session(
 
         scenario = (lost_poses_room if demo == "lost-poses" else campus)(seed)
         path.parent.mkdir(parents=True, exist_ok=True)
-        session = Session.new(scenario.map, path)
+        session = _new_session(scenario.map, path)
         return session, (
             f"created the demo session {path}: the generated {demo} world, damaged and not yet "
             f"corrected (seed {seed}; {_describe(session)})"
@@ -281,7 +301,7 @@ def open_session(
     from hitl_slam.io.maps import load_map
 
     the_map = load_map(source, max_range=max_range, bag=bag)
-    session = Session.new(the_map, path)
+    session = _new_session(the_map, path)
     return session, f"created the session {path} from {source} ({_describe(session)})"
 
 
