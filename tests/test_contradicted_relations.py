@@ -175,32 +175,13 @@ def test_a_false_statement_after_true_ones_is_the_one_that_yields(seed: int) -> 
     assert np.max(np.hypot(*(result.poses[:, :2] - shown[:, :2]).T)) < 0.1
 
 
-def _moved_by_a_yielded_statement(seed: int, points_yield: bool) -> tuple[float, float]:
-    """The scene of :func:`_false_after_true` with ``Config.points_yield`` as given: how far [m,
-    deg] the false statement, which yields, moves the map the true ones made."""
-    config = dataclasses.replace(UNGUARDED, points_yield=points_yield)
-    w, shown, active, result = _false_after_true(seed, config)
+@pytest.mark.parametrize("seed", range(4))
+def test_a_statement_that_yields_is_solved_alike_again(seed: int) -> None:
+    """The scene of :func:`_false_after_true`: the false statement yields (weight 0), and every
+    joint solve treats it alike: solving the set again from the result keeps the map."""
+    w, _, active, result = _false_after_true(seed, UNGUARDED)
     assert "this correction holds only in part (weight 0.00)" in result.interpretation.notes[-1]
-    turn = np.remainder(result.poses[:, 2] - shown[:, 2] + math.pi, 2 * math.pi) - math.pi
-    # Every joint solve lets the blocks yield alike: solving the set again keeps the map.
     again, _, _ = solve_all(
-        checked_map(w.map, config), [*active, result.interpretation], config, result.poses
+        checked_map(w.map, UNGUARDED), [*active, result.interpretation], UNGUARDED, result.poses
     )
     assert np.max(np.abs(again[:, :2] - result.poses[:, :2])) < 0.01
-    return (
-        float(np.max(np.hypot(*(result.poses[:, :2] - shown[:, :2]).T))),
-        math.degrees(float(np.max(np.abs(turn)))),
-    )
-
-
-@pytest.mark.parametrize("seed", range(4))
-def test_a_statement_that_yields_leaves_the_map_as_it_was(seed: int) -> None:
-    # A relation at weight 0 says nothing; its point-to-line blocks used to keep saying "these
-    # observations lie on one line each" and bent the passes they selected straight (Belgioioso
-    # in the full evaluation: a yielded colocation took 2.66 -> 4.51 degrees). They now yield
-    # with it where `Config.points_yield` is on (docs/ALGORITHM.md §I.21; off by default).
-    held = _moved_by_a_yielded_statement(seed, points_yield=False)
-    assert held[0] > 0.01, held  # what the blocks did on their own
-    moved = _moved_by_a_yielded_statement(seed, points_yield=True)
-    assert moved[0] < 0.005, moved
-    assert moved[1] < 0.01, moved

@@ -250,16 +250,10 @@ def _small_map() -> tuple[Map, list[Interpretation]]:
 
 
 def _joint_residuals(
-    m: Map, hs: list[Interpretation], poses: FloatArray, lines: FloatArray, sigma_scan: float = 0.0
+    m: Map, hs: list[Interpretation], poses: FloatArray, lines: FloatArray
 ) -> FloatArray:
     """The docs/ALGORITHM.md §4.3 cost written independently: odometry, then per correction R_a,
-    R_b, R_p; each of a pose's n points on a line weighs 1 / sqrt(sigma_f^2 + n sigma_scan^2)
-    (§I.20)."""
-
-    def sigma(rows: NDArray[np.int64]) -> FloatArray:
-        _, at, count = np.unique(rows[:, 0], return_inverse=True, return_counts=True)
-        return np.sqrt(DEFAULT.sigma_f**2 + count[at] * sigma_scan**2)
-
+    R_b, R_p."""
     from hitl_slam.graph import PoseGraph
 
     graph = PoseGraph(
@@ -271,8 +265,8 @@ def _joint_residuals(
         (pa, ra), (pb, rb) = lines[2 * k], lines[2 * k + 1]
         wa = world[m.offsets[h.s_a[:, 0]] + h.s_a[:, 1]]
         wb = world[m.offsets[h.s_b[:, 0]] + h.s_b[:, 1]]
-        out.append((wa @ [math.cos(pa), math.sin(pa)] - ra) / sigma(h.s_a))
-        out.append((wb @ [math.cos(pb), math.sin(pb)] - rb) / sigma(h.s_b))
+        out.append((wa @ [math.cos(pa), math.sin(pa)] - ra) / DEFAULT.sigma_f)
+        out.append((wb @ [math.cos(pb), math.sin(pb)] - rb) / DEFAULT.sigma_f)
         e = pb - pa - (math.pi / 2 if h.mode is Mode.PERPENDICULAR else 0.0)
         e = e - math.pi * round(e / math.pi)
         ca, cb = wa.mean(0), wb.mean(0)
@@ -286,16 +280,13 @@ def _joint_residuals(
     return np.concatenate(out)
 
 
-@pytest.mark.parametrize("sigma_scan", [0.0, 0.01])
-def test_joint_solve_matches_scipy_least_squares(sigma_scan: float) -> None:
+def test_joint_solve_matches_scipy_least_squares() -> None:
     m, hs = _small_map()
     start = m.poses.copy()
     # The §4.3 cost as written, every relation hard: from the uncorrected start the relations
     # are far from holding, and with their default kernel (docs/ALGORITHM.md §I.8) they would
     # yield instead.
-    hard = DEFAULT.replace(
-        relative_tolerance=1e-15, absolute_tolerance=1e-15, relation_dcs=0.0, sigma_scan=sigma_scan
-    )
+    hard = DEFAULT.replace(relative_tolerance=1e-15, absolute_tolerance=1e-15, relation_dcs=0.0)
     ours, lines, report = solve_all(m, hs, hard, start)
     assert report.converged
     n = m.num_poses
@@ -303,7 +294,7 @@ def test_joint_solve_matches_scipy_least_squares(sigma_scan: float) -> None:
     def fun(x: FloatArray) -> FloatArray:
         poses = start.copy()
         poses[1:] = compose(start[1:], exp(x[: 3 * (n - 1)].reshape(-1, 3)))
-        return _joint_residuals(m, hs, poses, x[3 * (n - 1) :].reshape(-1, 2), sigma_scan)
+        return _joint_residuals(m, hs, poses, x[3 * (n - 1) :].reshape(-1, 2))
 
     x0 = np.concatenate([np.zeros(3 * (n - 1)), lines.ravel()])
     # Start SciPy from a perturbed point so that it does the work itself.

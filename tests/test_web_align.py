@@ -41,7 +41,6 @@ OREBRO = LASER / "orebro-corrected.log.gz"
 # through: these tests are about the endpoint, not the guards.
 PERMISSIVE = DEFAULT.replace(
     align_max_contradicted=1.0,
-    align_max_contradicted_local=1.0,
     align_min_loop_closures=0,
     align_consistency_guard=False,
     align_max_overruled=1.0,

@@ -34,7 +34,6 @@ from web_support import (
 # default guard refuses that, a guard allowing every step lets it through.
 PERMISSIVE = DEFAULT.replace(
     align_max_contradicted=1.0,
-    align_max_contradicted_local=1.0,
     align_min_loop_closures=0,
     align_consistency_guard=False,
     align_max_overruled=1.0,

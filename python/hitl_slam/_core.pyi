@@ -232,9 +232,6 @@ class CorrectionEngine:
         k1: float,
         k2: float,
         average_points: bool = False,
-        sigma_scan: float = 0.0,
-        points_yield: bool = False,
-        even_centroids: bool = False,
         method: str = "lm",
         max_iterations: int = 100,
         relative_tolerance: float = 1e-6,
@@ -310,7 +307,6 @@ class Graph:
         k1: float,
         k2: float,
         average_points: bool = False,
-        sigma_scan: float = 0.0,
     ) -> tuple[int, int]: ...
     def optimize_with_lines(
         self,

@@ -15,11 +15,7 @@ guards judge the result without the truth, each refusing with its figures (nothi
   between the passes; without one the scans only re-measure the chain, which drifts;
 - odometry: the share of the input map's odometry steps the aligned poses contradict beyond the
   99.9% chi2 bound under the odometry's own information must be at most
-  ``Config.align_max_contradicted`` over the whole path, and, if set below 1 (off by default,
-  docs/ALGORITHM.md §I.17), at most ``Config.align_max_contradicted_local`` in any
-  :data:`LOCAL_STEPS` consecutive steps (a front end gone wrong in one cluttered room
-  contradicts few steps of a long log, all of them there; a candidate solve that does is set
-  aside, as below);
+  ``Config.align_max_contradicted`` over the whole path;
 - consistency (``Config.align_consistency_guard``): the aligned map's inconsistency (§6) must be
   lower than the map's before it (the point of aligning with the scans; the odometry guard keeps
   a map that flew apart, whose overlaps and so inconsistency shrink, from passing this one).
@@ -59,7 +55,6 @@ __all__ = [
     "aligned_map",
     "contradicted",
     "contradicted_steps",
-    "densest_stretch",
     "overruled",
 ]
 
@@ -79,10 +74,6 @@ of a degree, a fold of the map by degrees (docs/ALGORITHM.md §I.16)."""
 OVERRULED_M = 0.5
 """[m] Likewise for the offset between the two observation sets' centres (across the line for a
 collinear statement, anywhere for a colocation)."""
-
-LOCAL_STEPS = 100
-"""The stretch of consecutive odometry steps over which ``Config.align_max_contradicted_local``
-is counted (50-100 m of travel on maps with a scan every 0.5-1 m; docs/ALGORITHM.md §I.17)."""
 
 _MIN_POINTS_PER_SCAN = 20
 """Fewer laser points per scan on average than this and there is nothing to match."""
@@ -184,17 +175,6 @@ def contradicted(map: Map, poses: FloatArray) -> tuple[int, int]:
     return int(np.count_nonzero(beyond)), int(beyond.size)
 
 
-def densest_stretch(beyond: NDArray[np.bool_], window: int = LOCAL_STEPS) -> tuple[int, int]:
-    """``(k, start)``: the most steps marked in ``beyond`` among any ``window`` consecutive
-    ones (all of them when there are fewer), and the index of the first step of that stretch."""
-    if beyond.size == 0:
-        return 0, 0
-    w = min(window, beyond.size)
-    counts = np.convolve(beyond.astype(np.int64), np.ones(w, dtype=np.int64), mode="valid")
-    start = int(np.argmax(counts))
-    return int(counts[start]), start
-
-
 def aligned_map(
     map: Map,
     edges: NDArray[np.int64],
@@ -283,10 +263,6 @@ def align(
     best: tuple[float, float, FloatArray, FloatArray, SolveReport] | None = None
     limit = config.align_max_overruled * len(active)
     setaside: list[tuple[float, int]] = []  # (Phi, statements overruled)
-    # (Phi, steps contradicted in the stretch, its length, its first pose, its last pose, steps
-    # contradicted in all) of a candidate that contradicts the odometry in one stretch of the
-    # path (docs/ALGORITHM.md §I.17)
-    smeared: list[tuple[float, int, int, int, int, int]] = []
     for phi in relation_candidates(config) if active else (config.align_relation_dcs,):
         x, lines_x, report_x = solve_all(
             graph, active, aligned_config(config, phi), start=graph.poses
@@ -299,36 +275,10 @@ def align(
         if held_off > limit:
             setaside.append((phi, held_off))
             continue
-        if config.align_max_contradicted_local < 1:  # off by default (§I.17): no work then
-            first, beyond = contradicted_steps(map, x)
-            local, at = densest_stretch(beyond)
-            window = min(LOCAL_STEPS, beyond.size)
-        else:
-            local = window = 0
-        if window and local > config.align_max_contradicted_local * window:
-            last = int(first[at + window - 1]) + 1
-            smeared.append(
-                (phi, local, window, int(first[at]), last, int(np.count_nonzero(beyond)))
-            )
-            continue
         inc = inconsistency(map, x, config).total_m2
         if best is None or inc < best[0]:
             best = (inc, phi, x, lines_x, report_x)
     each = ", ".join(f"Phi {phi:g}: {k}" for phi, k in setaside)
-    if best is None and smeared:
-        _, local, window, lo, hi, k = min(smeared, key=lambda c: c[1])
-        if k > config.align_max_contradicted * len(beyond):
-            raise _contradicts_odometry(k, len(beyond), config)
-        raise AlignmentRefused(
-            f"the scans disagree with the odometry along poses {lo}-{hi}: the aligned map "
-            f"contradicts {local} of those {window} odometry steps ({100 * local / window:.0f}%) "
-            f"beyond their 99.9% bound, more than the "
-            f"{100 * config.align_max_contradicted_local:.0f}% allowed in any {LOCAL_STEPS} "
-            "consecutive steps (config align_max_contradicted_local); the map was not changed. "
-            "Scan matching went wrong there (clutter, a featureless corridor, a fault not yet "
-            "corrected): correct what is left there by drawing"
-            + (f"; the other solves overruled your statements ({each})" if setaside else "")
-        )
     if best is None:
         raise AlignmentRefused(
             f"the scans contradict what you said: the aligned map would hold at least "
@@ -340,15 +290,6 @@ def align(
             "by drawing"
         )
     after, phi, solved, lines, report = best
-    if smeared:
-        logger.info(
-            "alignment: set aside the solves that contradict the odometry in one stretch (%s); "
-            "kept Phi %g",
-            ", ".join(
-                f"Phi {c[0]:g}: {c[1]} of {c[2]} steps along poses {c[3]}-{c[4]}" for c in smeared
-            ),
-            phi,
-        )
     if setaside:
         logger.info(
             "alignment: set aside the solves that would hold too many of the %d statements off "

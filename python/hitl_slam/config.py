@@ -65,18 +65,9 @@ class Config:
     visit_gap: int = 10  # [poses] a gap larger than this in selected poses starts a new visit
     # §4.3 factors
     sigma_f: float = 0.03  # [m]
-    # [m] one scan's error against a wall that all its points share (the wall's bends and
-    # roughness, the sensor's calibration): a pose's n points on a drawn wall place it to
-    # sqrt(sigma_f^2 / n + sigma_scan^2), not sigma_f / sqrt(n) (docs/ALGORITHM.md §I.20:
-    # about 0.01 m on the real logs; measured and off by default). 0: every point independent,
-    # as the paper's R_a / R_b
-    sigma_scan: float = 0.0
     k1: float = 1e6  # [1/m^2]
     k2: float = 1e7  # [1/rad^2]
     average_points: bool = False
-    # True: a colocation's centroids weigh each point by the length of wall it stands for
-    # (docs/ALGORITHM.md §I.15: measured, not kept); False: the paper's plain centroids
-    colocation_even_centroids: bool = False
     # solver for corrections
     max_iterations: int = 50
     relative_tolerance: float = 1e-6
@@ -112,21 +103,11 @@ class Config:
     # then partly taken out where it came in. Off: it made fewer corrections worse in the full
     # evaluation but Freiburg 079 worse in the standard one (docs/ALGORITHM.md §I.5)
     odometry_fuse: float = 0.0
-    # a colocation whose two passes saw stretches of the wall differing in length by more than
-    # 10% (+ 2 sigma_h) is applied as collinear before any solve (the first rule of
-    # docs/ALGORITHM.md §I.3). Off: the two readings are solved and the chi2 guard and the
-    # scans (§I.13) choose, which made fewer corrections worse in the full evaluation
-    colocation_length_rule: bool = False
     # a drawing whose segment lay between two lines of nearly equal score (its snap a near tie,
     # docs/ALGORITHM.md §I.1) and whose reading contradicts earlier corrections (one of them, or
     # the new one, would yield, §I.8) is read again with that segment on the other line; the
     # first reading that contradicts none is kept, with a note (§I.18)
     near_tie_reading: bool = True
-    # a correction is one statement: where its relation yields (§I.8), its point-to-line blocks
-    # yield with it, so that a statement that holds only in part does not bend the passes it
-    # selected straight (docs/ALGORITHM.md §I.21: measured; the full evaluation at seed 0 was a
-    # little worse with it, so off by default)
-    points_yield: bool = False
     # consistency guard: a correction after which the map's own measurements (its relative-pose
     # factors) score a chi2 above this quantile of chi2 with 3 x edges dof is tried again with
     # the passes nearest the drawings, then refused with the figures (0 = off)
@@ -137,18 +118,9 @@ class Config:
     # spreading over the stretch), and the more consistent map (§6) of the two is kept
     # (docs/ALGORITHM.md §I.12; "" = off; not tried when `robust` names an odometry kernel)
     unchecked_alternative: str = "odometry=dcs:1"
-    # where EM finds no line under a segment, find the pass drawn on by itself
-    # (docs/ALGORITHM.md §I.4; off: on the standard evaluation it took Freiburg 079 from 1.2 to
-    # 5.1 deg)
-    pass_by_pass: bool = False
     # alignment with the scans (docs/ALGORITHM.md §I.11): refused when the aligned poses
     # contradict more than this share of the odometry steps beyond their 99.9% bound
     align_max_contradicted: float = 0.05
-    # and, for each candidate solve, in any alignment.LOCAL_STEPS (100) consecutive steps: a
-    # candidate beyond it is set aside, and where every one is, the alignment is refused
-    # (docs/ALGORITHM.md §I.17; 1 = off, the default: at 0.15 it caught one smeared alignment
-    # and refused two helpful ones of the standard evaluation)
-    align_max_contradicted_local: float = 1.0
     # and when the front end kept fewer loop closures than this between the passes
     align_min_loop_closures: int = 1
     # and when the aligned map is not less inconsistent (§6) than the map before it (False: off)
@@ -193,8 +165,6 @@ class Config:
         ):
             if getattr(self, name) <= 0:
                 raise InputError(f"config {name} must be > 0")
-        if not self.sigma_scan >= 0:
-            raise InputError("config sigma_scan must be >= 0")
         if self.search_band > 0 and self.drawing_sigma <= 0:
             raise InputError("config drawing_sigma must be > 0 when search_band is > 0")
         if not self.consistency_guard < 1:
@@ -207,12 +177,6 @@ class Config:
             raise InputError(
                 "config align_max_contradicted is a share of the odometry steps, between 0 and "
                 f"1, e.g. 0.05; got {self.align_max_contradicted!r}"
-            )
-
-        if not self.align_max_contradicted_local <= 1:
-            raise InputError(
-                "config align_max_contradicted_local is a share of the odometry steps in a "
-                f"stretch, between 0 and 1, e.g. 0.15; got {self.align_max_contradicted_local!r}"
             )
 
         if not self.align_max_overruled <= 1:
@@ -233,7 +197,37 @@ class Config:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Config:
+        """The configuration ``data`` (:meth:`to_dict`) describes. A key of :data:`_REMOVED`
+        (a session saved before that option was deleted) is dropped where it holds the value
+        the option had when off, so behaviour is the same; holding another, it is refused."""
+        data = dict(data)
+        for name, off in _REMOVED.items():
+            if name in data and not _is_off(value := data.pop(name), off):
+                raise InputError(
+                    f"config {name} was removed in this version (measured and not kept, "
+                    f"docs/ALGORITHM.md); this configuration sets it to {value!r} instead of "
+                    f"{off!r} (off), which this version cannot reproduce"
+                )
         return DEFAULT.replace(**data)
+
+
+_REMOVED: dict[str, bool | float] = {
+    "sigma_scan": 0.0,
+    "points_yield": False,
+    "pass_by_pass": False,
+    "colocation_even_centroids": False,
+    "colocation_length_rule": False,
+    "align_max_contradicted_local": 1.0,
+}
+"""Options measured and not kept, deleted from :class:`Config`, each with the value it had when
+off: a stored configuration may still name them with that value (:meth:`Config.from_dict`)."""
+
+
+def _is_off(value: object, off: bool | float) -> bool:
+    """Whether ``value``, stored for a removed option, is ``off``, the value it had when off."""
+    if isinstance(off, bool):
+        return value is off
+    return isinstance(value, int | float) and not isinstance(value, bool) and value == off
 
 
 DEFAULT = Config()

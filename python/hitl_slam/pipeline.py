@@ -224,9 +224,6 @@ def solve_all(
             k1=config.k1,
             k2=config.k2,
             average_points=config.average_points,
-            sigma_scan=config.sigma_scan,
-            points_yield=config.points_yield,
-            even_centroids=config.colocation_even_centroids,
             max_iterations=config.max_iterations,
             relative_tolerance=config.relative_tolerance,
             absolute_tolerance=config.absolute_tolerance,
@@ -352,10 +349,8 @@ def apply_correction(
     measurements (the map's relative-pose factors) more than ``colocation_guard`` above the
     collinear solution's chi2, the along-the-wall part contradicts them and the collinear
     solution is applied instead; where the chi2 cannot tell, the scans around the passes decide
-    (``config.colocation_consistency``). With ``config.colocation_length_rule`` a colocation
-    whose two observation sets differ in length by more than 10% (plus ``2 sigma_h``) is
-    applied as collinear before any solve (off by default, docs/ALGORITHM.md §I.3). Either way
-    a note in the interpretation gives the figures."""
+    (``config.colocation_consistency``). Either way a note in the interpretation gives the
+    figures."""
     from hitl_slam.interpret import checked_drawing, from_core, map_scans
     from hitl_slam.odometry_check import checked_map
 

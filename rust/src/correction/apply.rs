@@ -72,16 +72,9 @@ pub struct ApplyParams {
     /// The inconsistency metric (docs/ALGORITHM.md §6) that chooses between a colocation and its
     /// collinear reading when the chi2 guard lets both stand (§I.13); None = chi2 alone.
     pub consistency_metric: Option<ConsistencyMetric>,
-    /// Whether a colocation whose passes saw stretches of different lengths is applied as
-    /// collinear before any solve (`Config.colocation_length_rule`, off by default since the
-    /// two solves decide better; docs/ALGORITHM.md §I.3).
-    pub length_rule: bool,
     /// Whether a reading that contradicts earlier corrections is tried again on the next line
     /// of a near-tie snap (`Config.near_tie_reading`, docs/ALGORITHM.md §I.18).
     pub near_tie_reading: bool,
-    /// Whether a correction whose relation yields has its point-to-line blocks yield with it
-    /// (`Config.points_yield`, docs/ALGORITHM.md §I.21).
-    pub points_yield: bool,
 }
 
 /// How far around its passes a colocation's two readings are compared (§I.13): each pass
@@ -250,15 +243,6 @@ fn contradicted_note(weights: &[f64], before: &[f64], contested: bool) -> Option
     (!parts.is_empty()).then(|| parts.join("; "))
 }
 
-/// The `q`-th percentile (0..100) of `v`, interpolated linearly as numpy's default.
-fn percentile(sorted: &[f64], q: f64) -> f64 {
-    let pos = q / 100.0 * (sorted.len() - 1) as f64;
-    let lo = pos.floor() as usize;
-    let hi = (lo + 1).min(sorted.len() - 1);
-    let t = pos - lo as f64;
-    sorted[lo] + (sorted[hi] - sorted[lo]) * t
-}
-
 /// The Wilson-Hilferty quantile of chi2 with `dof` degrees of freedom for the standard normal
 /// quantile `z`.
 pub fn chi2_limit(dof: usize, z: f64) -> f64 {
@@ -267,21 +251,6 @@ pub fn chi2_limit(dof: usize, z: f64) -> f64 {
 }
 
 impl CorrectionEngine {
-    /// [m] Length of the stretch of wall `rows` cover at `poses`: the 2nd to 98th percentile of
-    /// their positions along their own line.
-    fn stretch(scans: &Scans, poses: &[Pose2], rows: &[Row]) -> Result<f64> {
-        let world = scans.world(poses, rows)?;
-        let line = crate::geometry::fit_line(&world)
-            .ok_or_else(|| HitlError::Input("a stretch of wall needs observations".into()))?;
-        let dir = [-line.phi.sin(), line.phi.cos()];
-        let mut along: Vec<f64> = world
-            .iter()
-            .map(|w| w[0] * dir[0] + w[1] * dir[1])
-            .collect();
-        along.sort_by(f64::total_cmp);
-        Ok(percentile(&along, 98.0) - percentile(&along, 2.0))
-    }
-
     /// docs/ALGORITHM.md §4.1 then §4.2: the rigid move of every pose from `min(X_b)` on, and
     /// the chain from `max(X_a)` made to meet it. Returns (new poses, the transform).
     pub fn explicit_and_backpropagate(
@@ -348,40 +317,6 @@ impl CorrectionEngine {
         })
     }
 
-    /// The kept solution with the point-to-line blocks of every yielding relation yielding
-    /// with it ([`CorrectionEngine::points_yield`]); the decisions (which reading, which
-    /// statements yield) stay those made on `solved` (docs/ALGORITHM.md §I.21).
-    fn relax_yielded(
-        &mut self,
-        scans: &Scans,
-        h: &Interpretation,
-        solved: Solved,
-        active: &[Active],
-        p: &ApplyParams,
-    ) -> Result<Solved> {
-        if solved.relation_weights.iter().all(|w| *w >= YIELDED) {
-            return Ok(solved);
-        }
-        let specs = specs_with(scans, active, h)?;
-        Ok(
-            match self.points_yield(
-                solved.poses.clone(),
-                &specs,
-                &p.weights,
-                &p.solver,
-                &solved.relation_weights,
-            )? {
-                Some((values, report)) => Solved {
-                    poses: values.poses,
-                    lines: values.lines,
-                    report,
-                    ..solved
-                },
-                None => solved,
-            },
-        )
-    }
-
     /// Where the new correction contradicts earlier ones (some earlier relation yields in
     /// `solved`, which started from the new correction's explicit step, so the new statement
     /// held from the start), the same set is solved again from the map as shown, where the
@@ -429,7 +364,7 @@ impl CorrectionEngine {
             .map(|c| {
                 let c = spec(scans, c.mode, &c.s_a, &c.s_b)?;
                 values.lines = vec![fit_line_at(poses, &c.a)?, fit_line_at(poses, &c.b)?];
-                let factors = c.factors(0, &p.weights, Some(poses))?;
+                let factors = c.factors(0, &p.weights)?;
                 let relation = factors.last().ok_or_else(|| {
                     HitlError::Solver("internal: a correction without a relation factor".into())
                 })?;
@@ -501,9 +436,6 @@ impl CorrectionEngine {
         {
             h.notes.push(note);
         }
-        if p.points_yield {
-            solved = self.relax_yielded(scans, &h, solved, active, p)?;
-        }
         Ok(Applied {
             interpretation: h,
             poses: solved.poses,
@@ -516,7 +448,7 @@ impl CorrectionEngine {
     }
 
     /// One reading of a drawing (`h`, interpreted on the map shown with `current`) corrected
-    /// and solved: the colocation's length rule and guard (§I.3, §I.13), the contradiction
+    /// and solved: the colocation guard (§I.3, §I.13), the contradiction
     /// settled (§I.8), and the consistency guard (§I.6). `before`: the chi2 of the map's own
     /// factors at `current`.
     #[allow(clippy::too_many_arguments)]
@@ -530,19 +462,6 @@ impl CorrectionEngine {
         active: &[Active],
         p: &ApplyParams,
     ) -> Result<(Interpretation, Solved)> {
-        let sigma_h = p.interpret.sigma_h;
-        if h.mode == RelationMode::Colocation && p.colocation_guard > 0.0 && p.length_rule {
-            let len_a = Self::stretch(scans, current, &h.s_a)?;
-            let len_b = Self::stretch(scans, current, &h.s_b)?;
-            let tolerance = 0.1 * len_a.max(len_b) + 2.0 * sigma_h;
-            if (len_a - len_b).abs() > tolerance {
-                h.notes.push(format!(
-                    "applied as collinear: the two passes saw different stretches of the wall \
-                     ({len_a:.2} m and {len_b:.2} m long), so their centres are not one place"
-                ));
-                h.mode = RelationMode::Collinear;
-            }
-        }
         let guarded = h.mode == RelationMode::Colocation && p.colocation_guard > 0.0;
         let mut alt = h.clone();
         alt.mode = RelationMode::Collinear;

@@ -10,7 +10,6 @@
 //! [`PATTERN_CACHE`] sparsity patterns keyed by the human part's structure.
 
 use super::apply::Chain;
-use super::centroid::along_wall_weights;
 use crate::error::{input, HitlError, Result};
 use crate::factors::{CentroidShare, Factor, PointsToLineFactor, RelationFactor, RelationMode};
 use crate::graph::FactorGraph;
@@ -37,32 +36,19 @@ pub struct CorrectionSpec {
     pub b: Vec<PoseObservations>,
 }
 
-/// The weights of the human factors (`Config.sigma_f`, `sigma_scan`, `k1`, `k2`,
-/// `average_points`, `colocation_even_centroids`).
+/// The weights of the human factors (`Config.sigma_f`, `k1`, `k2`, `average_points`).
 #[derive(Clone, Copy, Debug)]
 pub struct HumanWeights {
     pub sigma_f: f64,
     pub k1: f64,
     pub k2: f64,
     pub average_points: bool,
-    /// [m] One scan's error against a wall it saw that its points share (the wall's roughness
-    /// and bends, the sensor's calibration): a pose's `n` points on a line place it no better
-    /// than `sqrt(sigma_f^2 / n + sigma_scan^2)` across the line, so each of them weighs
-    /// `1 / sqrt(sigma_f^2 + n sigma_scan^2)` (docs/ALGORITHM.md §I.20). 0: every point is
-    /// independent (the paper's R_a, R_b).
-    pub sigma_scan: f64,
-    /// A colocation's centroids weigh every stretch of the wall alike
-    /// ([`super::centroid::along_wall_weights`], docs/ALGORITHM.md §I.15).
-    pub even_centroids: bool,
 }
 
 impl HumanWeights {
     pub fn validate(&self) -> Result<()> {
         if !(self.sigma_f.is_finite() && self.sigma_f > 0.0) {
             return input(format!("sigma_f must be positive, got {}", self.sigma_f));
-        }
-        if !(self.sigma_scan.is_finite() && self.sigma_scan >= 0.0) {
-            return input(format!("sigma_scan must be >= 0, got {}", self.sigma_scan));
         }
         for (name, k) in [("k1", self.k1), ("k2", self.k2)] {
             if !(k.is_finite() && k >= 0.0) {
@@ -72,15 +58,12 @@ impl HumanWeights {
         Ok(())
     }
 
-    /// The weight of each of the `at_pose` points one pose contributes to a segment of `count`
-    /// points in all.
-    fn point_weight(&self, count: usize, at_pose: usize) -> f64 {
-        let shared = at_pose as f64 * self.sigma_scan * self.sigma_scan;
-        let per_point = (self.sigma_f * self.sigma_f + shared).sqrt();
+    /// The weight of each point of a segment of `count` points in all.
+    fn point_weight(&self, count: usize) -> f64 {
         if self.average_points {
-            1.0 / (per_point * (count as f64).sqrt())
+            1.0 / (self.sigma_f * (count as f64).sqrt())
         } else {
-            1.0 / per_point
+            1.0 / self.sigma_f
         }
     }
 }
@@ -127,57 +110,21 @@ impl CorrectionSpec {
     }
 
     /// The factors of this correction (docs/ALGORITHM.md §4.3) over lines `la` and `la + 1`: one
-    /// point-to-line factor per observing pose and segment, then the relation R_p. `poses`:
-    /// where the solve starts, which places a colocation's points along its wall when
-    /// `w.even_centroids` (without them, or for other modes, every point counts alike).
-    pub fn factors(
-        &self,
-        la: usize,
-        w: &HumanWeights,
-        poses: Option<&[Pose2]>,
-    ) -> Result<Vec<Box<dyn Factor>>> {
-        self.factors_scaled(la, w, poses, 1.0)
-    }
-
-    /// [`Self::factors`] with every point-to-line row scaled by `point_scale` (its information
-    /// by `point_scale^2`); the relation as it is (docs/ALGORITHM.md §I.21).
-    pub fn factors_scaled(
-        &self,
-        la: usize,
-        w: &HumanWeights,
-        poses: Option<&[Pose2]>,
-        point_scale: f64,
-    ) -> Result<Vec<Box<dyn Factor>>> {
-        if !(point_scale.is_finite() && point_scale > 0.0) {
-            return input(format!("a point scale must be > 0, got {point_scale}"));
-        }
+    /// point-to-line factor per observing pose and segment, then the relation R_p (every point
+    /// counts alike in its centroid).
+    pub fn factors(&self, la: usize, w: &HumanWeights) -> Result<Vec<Box<dyn Factor>>> {
         let lb = la + 1;
         let count = |set: &[PoseObservations]| set.iter().map(|(_, p)| p.len()).sum::<usize>();
         let (na, nb) = (count(&self.a), count(&self.b));
         let mut factors: Vec<Box<dyn Factor>> = Vec::with_capacity(self.num_factors());
         let mut shares = Vec::with_capacity(self.a.len() + self.b.len());
-        let even = match poses {
-            Some(x) if w.even_centroids && self.mode == RelationMode::Colocation => Some((
-                along_wall_weights(x, &self.a),
-                along_wall_weights(x, &self.b),
-            )),
-            _ => None,
-        };
         for (set, total, is_a) in [(&self.a, na, true), (&self.b, nb, false)] {
-            for (k, (i, pts)) in set.iter().enumerate() {
-                // Each point's weight in its centroid: 1, or the wall it stands for.
-                let along = even
-                    .as_ref()
-                    .map(|(ea, eb)| if is_a { &ea[k] } else { &eb[k] });
+            for (i, pts) in set {
                 let share = pts
                     .iter()
-                    .enumerate()
-                    .fold(CentroidShare::default(), |s, (j, p)| {
-                        let wk = along.map_or(1.0, |ws| ws[j]);
-                        CentroidShare {
-                            count: s.count + wk,
-                            sum: [s.sum[0] + wk * p[0], s.sum[1] + wk * p[1]],
-                        }
+                    .fold(CentroidShare::default(), |s, p| CentroidShare {
+                        count: s.count + 1.0,
+                        sum: [s.sum[0] + p[0], s.sum[1] + p[1]],
                     });
                 shares.push(if is_a {
                     (*i, share, CentroidShare::default())
@@ -189,7 +136,7 @@ impl CorrectionSpec {
                     *i,
                     line,
                     pts.clone(),
-                    point_scale * w.point_weight(total, pts.len()),
+                    w.point_weight(total),
                 )?));
             }
         }
@@ -324,20 +271,6 @@ impl CorrectionEngine {
         Ok(())
     }
 
-    /// Solves poses and the lines of `corrections` jointly from `poses`, over the base factors
-    /// plus every correction's factors. Each correction's lines start at the TLS fit of its
-    /// observations at `poses`. Returns the values (poses, then two lines per correction, in
-    /// order) and the report. Nothing is kept of the corrections but the structure's analysis.
-    pub fn solve(
-        &mut self,
-        poses: Vec<Pose2>,
-        corrections: &[CorrectionSpec],
-        weights: &HumanWeights,
-        params: &SolverParams,
-    ) -> Result<(Values, SolveReport)> {
-        self.solve_scaled(poses, corrections, weights, params, &[])
-    }
-
     /// The robust weight of each correction's relation in `report`, a solve of `corrections`
     /// (each correction's factors follow the map's, its relation last; 1 without a kernel).
     pub fn relation_weights(
@@ -355,59 +288,16 @@ impl CorrectionEngine {
             .collect()
     }
 
-    /// A correction is one statement: where its relation yields (`relation_weights[k]` below
-    /// [`YIELDED`]), the claim that its observations lie on one line each yields with it.
-    /// Solves `corrections` once more from `poses`, every correction's point-to-line
-    /// information multiplied by its relation's weight (docs/ALGORITHM.md §I.21); `None` when
-    /// every relation holds.
-    pub fn points_yield(
+    /// Solves poses and the lines of `corrections` jointly from `poses`, over the base factors
+    /// plus every correction's factors. Each correction's lines start at the TLS fit of its
+    /// observations at `poses`. Returns the values (poses, then two lines per correction, in
+    /// order) and the report. Nothing is kept of the corrections but the structure's analysis.
+    pub fn solve(
         &mut self,
         poses: Vec<Pose2>,
         corrections: &[CorrectionSpec],
         weights: &HumanWeights,
         params: &SolverParams,
-        relation_weights: &[f64],
-    ) -> Result<Option<(Values, SolveReport)>> {
-        if relation_weights.iter().all(|w| *w >= YIELDED) {
-            return Ok(None);
-        }
-        // Row scales: the square root of each relation's weight (floored so that the lines
-        // stay defined; at 1e-6 of their information they no longer move a pose).
-        let scales: Vec<f64> = relation_weights
-            .iter()
-            .map(|w| w.clamp(1e-6, 1.0).sqrt())
-            .collect();
-        self.solve_scaled(poses, corrections, weights, params, &scales)
-            .map(Some)
-    }
-
-    /// [`Self::solve`], then [`Self::points_yield`] from its solution where a relation yields.
-    pub fn solve_yielding(
-        &mut self,
-        poses: Vec<Pose2>,
-        corrections: &[CorrectionSpec],
-        weights: &HumanWeights,
-        params: &SolverParams,
-    ) -> Result<(Values, SolveReport)> {
-        let (values, report) = self.solve(poses, corrections, weights, params)?;
-        let w = self.relation_weights(corrections, &report);
-        Ok(
-            match self.points_yield(values.poses.clone(), corrections, weights, params, &w)? {
-                Some(relaxed) => relaxed,
-                None => (values, report),
-            },
-        )
-    }
-
-    /// [`Self::solve`] with correction `k`'s point-to-line rows scaled by `point_scales[k]`
-    /// (1 where the slice is shorter; [`CorrectionSpec::factors_scaled`]).
-    pub fn solve_scaled(
-        &mut self,
-        poses: Vec<Pose2>,
-        corrections: &[CorrectionSpec],
-        weights: &HumanWeights,
-        params: &SolverParams,
-        point_scales: &[f64],
     ) -> Result<(Values, SolveReport)> {
         weights.validate()?;
         let mut values = Values::from_poses(poses);
@@ -419,8 +309,7 @@ impl CorrectionEngine {
         for (k, c) in corrections.iter().enumerate() {
             c.validate(n)
                 .map_err(|e| HitlError::Input(format!("correction {k}: {e}")))?;
-            let scale = point_scales.get(k).copied().unwrap_or(1.0);
-            human.extend(c.factors_scaled(2 * k, weights, Some(&values.poses), scale)?);
+            human.extend(c.factors(2 * k, weights)?);
             lines.push(fit_line_at(&values.poses, &c.a)?);
             lines.push(fit_line_at(&values.poses, &c.b)?);
         }
@@ -501,11 +390,9 @@ mod tests {
     fn weights() -> HumanWeights {
         HumanWeights {
             sigma_f: 0.03,
-            sigma_scan: 0.0,
             k1: 1e6,
             k2: 1e7,
             average_points: false,
-            even_centroids: true,
         }
     }
 
@@ -630,22 +517,17 @@ mod tests {
     }
 
     #[test]
-    fn a_scan_places_its_pose_no_better_than_sigma_scan() {
-        // n points of one pose at weight w inform its offset across the line by n w^2: without
-        // sigma_scan, n / sigma_f^2 (unbounded in n); with it, 1 / (sigma_f^2 / n + sigma_scan^2).
+    fn each_point_weighs_one_over_sigma_f_or_its_rms_share() {
+        // Every point is independent (the paper's R_a, R_b): 1 / sigma_f whatever the count,
+        // or with `average_points` 1 / (sigma_f sqrt(count)).
         let mut w = weights();
-        for n in [1usize, 10, 1000] {
-            let plain = w.point_weight(5000, n);
-            assert!((plain - 1.0 / 0.03).abs() < 1e-12);
+        for count in [1usize, 10, 5000] {
+            assert!((w.point_weight(count) - 1.0 / 0.03).abs() < 1e-12);
         }
-        w.sigma_scan = 0.01;
-        for n in [1usize, 10, 1000] {
-            let info = n as f64 * w.point_weight(5000, n).powi(2);
-            let want = 1.0 / (0.03f64.powi(2) / n as f64 + 0.01f64.powi(2));
-            assert!((info - want).abs() < 1e-9 * want, "n={n}: {info} vs {want}");
-            assert!(info < 1.0 / 0.01f64.powi(2));
-        }
-        w.sigma_scan = -1.0;
+        w.average_points = true;
+        let rms = w.point_weight(100);
+        assert!((rms - 1.0 / (0.03 * 10.0)).abs() < 1e-12, "{rms}");
+        w.sigma_f = 0.0;
         assert!(w.validate().is_err());
     }
 }

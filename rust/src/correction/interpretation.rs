@@ -1,4 +1,4 @@
-//! What a person meant by a drawing (docs/ALGORITHM.md §3, §I.2, §I.4): EM finds the feature
+//! What a person meant by a drawing (docs/ALGORITHM.md §3, §I.2): EM finds the feature
 //! under each drawn segment and the observations on it, then the pair rules (pose threshold,
 //! one visit per segment, no shared poses, time order) turn them into
 //! `h = <P_a, P_b, S_a, S_b, X_a, X_b, m>`. Every refusal is a [`HitlError::Rejected`] whose
@@ -14,8 +14,6 @@ use crate::se2::Pose2;
 
 /// Observations spanning less than this along their line give it no direction [m].
 pub const MIN_EXTENT_M: f64 = 0.05;
-/// A pass whose line turns more from the drawing than this is a crossing wall [rad].
-pub const MAX_TURN: f64 = 0.4;
 /// EM also waits for the mixing weight to settle (`interpret.TOLERANCE_MIXING`).
 pub const TOLERANCE_MIXING: f64 = 1e-4;
 
@@ -33,7 +31,6 @@ pub struct InterpretParams {
     pub em_max_iterations: usize,
     pub min_points_per_pose: usize,
     pub visit_gap: usize,
-    pub pass_by_pass: bool,
 }
 
 /// A drawing: two segments and the relation stated between them.
@@ -618,160 +615,6 @@ fn refit(sel: &Selection, scans: &Scans, poses: &[Pose2], band: f64) -> Result<[
     Ok(fit.extent)
 }
 
-/// One pass's line under a drawing (docs/ALGORITHM.md §I.4).
-struct PassLine {
-    rows: Vec<Row>,
-    span: (i64, i64),
-    score: f64,
-    offset: f64,
-    turn: f64,
-}
-
-/// The pass whose own line best explains `drawn`: among the points within `search` of the
-/// drawing (and at most 0.3 m past its ends), split into passes (pose runs with no gap over
-/// `gap`), each pass's Cauchy-weighted TLS line; its inliers (within `2 sigma_em`) from poses
-/// with `min_points` or more of them. Returns the best and the runner-up's score.
-#[allow(clippy::too_many_arguments)]
-fn best_pass(
-    scans: &Scans,
-    flat: &[f64],
-    drawn: [[f64; 2]; 2],
-    search: f64,
-    sigma_em: f64,
-    closeness: f64,
-    pointing: f64,
-    gap: usize,
-    min_points: usize,
-) -> Result<Option<(PassLine, f64)>> {
-    let [p0, p1] = drawn;
-    let length = (p1[0] - p0[0]).hypot(p1[1] - p0[1]);
-    if !(length > 0.0 && search > 0.0) {
-        return Ok(None);
-    }
-    let dir = [(p1[0] - p0[0]) / length, (p1[1] - p0[1]) / length];
-    let normal = [-dir[1], dir[0]];
-    let seg = Segment::new(p0, p1);
-    let (world, rows) = scans.near(flat, &[seg], search + 0.3)?;
-    let pts: Vec<[f64; 2]> = world.flat.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
-    // (owner, map row, world point), near the drawing, by owner (stable).
-    let mut near: Vec<(i64, usize, [f64; 2])> = Vec::new();
-    for (w, &k) in pts.iter().zip(&rows) {
-        let along = (w[0] - p0[0]) * dir[0] + (w[1] - p0[1]) * dir[1];
-        let across = (w[0] - p0[0]) * normal[0] + (w[1] - p0[1]) * normal[1];
-        if across.abs() <= search && along >= -0.3 && along <= length + 0.3 {
-            near.push((scans.owner(k) as i64, k, *w));
-        }
-    }
-    if near.len() < min_points {
-        return Ok(None);
-    }
-    near.sort_by_key(|r| r.0);
-    let sigma_t = std::f64::consts::SQRT_2 * pointing / length;
-    let mut found: Vec<PassLine> = Vec::new();
-    let mut lo = 0;
-    while lo < near.len() {
-        let mut hi = lo + 1;
-        while hi < near.len() && near[hi].0 - near[hi - 1].0 <= gap as i64 {
-            hi += 1;
-        }
-        let pass = &near[lo..hi];
-        lo = hi;
-        if pass.len() < 3 * min_points {
-            continue;
-        }
-        let flat_pts: Vec<f64> = pass.iter().flat_map(|r| r.2).collect();
-        let mut weights = vec![1.0; pass.len()];
-        let mut resid = vec![0.0; pass.len()];
-        let (mut phi, mut rho) = (0.0, 0.0);
-        for _ in 0..4 {
-            let fit = line_fit(Points::new(&flat_pts)?, &weights, &seg, 0.3)?;
-            (phi, rho) = (fit.phi, fit.rho);
-            let n = [phi.cos(), phi.sin()];
-            for ((r, w), p) in resid.iter_mut().zip(weights.iter_mut()).zip(pass) {
-                *r = p.2[0] * n[0] + p.2[1] * n[1] - rho;
-                *w = 1.0 / (1.0 + (*r / sigma_em).powi(2));
-            }
-        }
-        let mut inlier: Vec<bool> = resid.iter().map(|r| r.abs() <= 2.0 * sigma_em).collect();
-        let count = inlier.iter().filter(|x| **x).count();
-        if (count as f64) < (0.5 * pass.len() as f64).max(3.0 * min_points as f64) {
-            continue; // clutter or a corner, not a line
-        }
-        // T_p: only poses that see enough of it.
-        let mut per_pose: Vec<(i64, usize)> = Vec::new();
-        for (p, &ok) in pass.iter().zip(&inlier) {
-            if ok {
-                match per_pose.last_mut() {
-                    Some((q, c)) if *q == p.0 => *c += 1,
-                    _ => per_pose.push((p.0, 1)),
-                }
-            }
-        }
-        for (p, ok) in pass.iter().zip(inlier.iter_mut()) {
-            *ok = *ok && per_pose.iter().any(|(q, c)| *q == p.0 && *c >= min_points);
-        }
-        let n_in = inlier.iter().filter(|x| **x).count();
-        if n_in < 3 * min_points {
-            continue;
-        }
-        let n = [phi.cos(), phi.sin()];
-        let offset = 0.5
-            * ((p0[0] * n[0] + p0[1] * n[1] - rho).abs()
-                + (p1[0] * n[0] + p1[1] * n[1] - rho).abs());
-        let line_dir = [-n[1], n[0]];
-        let turn = (line_dir[0] * dir[0] + line_dir[1] * dir[1])
-            .abs()
-            .min(1.0)
-            .acos();
-        if turn > MAX_TURN {
-            continue; // a crossing wall, not the one drawn along
-        }
-        let score = (n_in as f64).ln()
-            - offset * offset / (2.0 * closeness * closeness)
-            - turn * turn / (2.0 * sigma_t * sigma_t);
-        let kept: Vec<Row> = pass
-            .iter()
-            .zip(&inlier)
-            .filter(|(_, ok)| **ok)
-            .map(|(p, _)| scans.row_of(p.1))
-            .collect();
-        found.push(PassLine {
-            rows: kept,
-            span: (pass[0].0, pass[pass.len() - 1].0),
-            score,
-            offset,
-            turn,
-        });
-    }
-    if found.is_empty() {
-        return Ok(None);
-    }
-    // Stable: the earliest pass on a tie.
-    found.sort_by(|x, y| y.score.total_cmp(&x.score));
-    let runner_up = found.get(1).map_or(f64::NEG_INFINITY, |f| f.score);
-    Ok(Some((found.swap_remove(0), runner_up)))
-}
-
-fn pass_note(name: char, p: &PassLine, runner_up: f64) -> String {
-    let other = if runner_up.is_finite() {
-        format!(
-            "score {:.2} against {:.2} for the next pass",
-            p.score, runner_up
-        )
-    } else {
-        "no other pass near it".into()
-    };
-    format!(
-        "segment {name}: no one line under it, so it was matched pass by pass: poses {}-{} ({} \
-         points), {:.2} m from the drawing and turned {:.1} deg ({other})",
-        p.span.0,
-        p.span.1,
-        p.rows.len(),
-        p.offset,
-        p.turn.to_degrees()
-    )
-}
-
 fn check_segment(name: char, seg: &[[f64; 2]; 2]) -> Result<()> {
     if !seg.iter().flatten().all(|v| v.is_finite()) {
         return rejected(format!(
@@ -883,26 +726,6 @@ pub fn interpret(
                 String::new()
             }
         ));
-    }
-    for s in [&mut a, &mut b] {
-        if s.rows.is_empty() && search > 0.0 && p.pass_by_pass {
-            // A blur of passes that disagree a little each: find the one drawn on by itself.
-            if let Some((found, runner_up)) = best_pass(
-                scans,
-                &flat,
-                s.drawn,
-                search,
-                p.sigma_em,
-                p.drawing_sigma * sigma_h,
-                sigma_h,
-                p.visit_gap,
-                t_p,
-            )? {
-                notes.push(pass_note(s.name, &found, runner_up));
-                s.weights = vec![1.0; found.rows.len()];
-                s.rows = found.rows;
-            }
-        }
     }
     let empty: Vec<&Selection> = [&a, &b].into_iter().filter(|s| s.rows.is_empty()).collect();
     if !empty.is_empty() {

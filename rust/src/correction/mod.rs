@@ -6,7 +6,6 @@
 
 mod apply;
 mod backprop;
-pub mod centroid;
 pub mod engine;
 mod explicit;
 mod interpretation;

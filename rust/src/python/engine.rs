@@ -116,7 +116,6 @@ fn interpret_params(
             Some(g) => g,
             None => attr(config, "visit_gap")?,
         },
-        pass_by_pass: attr(config, "pass_by_pass")?,
     })
 }
 
@@ -166,11 +165,9 @@ fn apply_params(
         interpret: interpret_params(config, sigma_h, None)?,
         weights: HumanWeights {
             sigma_f: attr(config, "sigma_f")?,
-            sigma_scan: attr(config, "sigma_scan")?,
             k1: attr(config, "k1")?,
             k2: attr(config, "k2")?,
             average_points: attr(config, "average_points")?,
-            even_centroids: attr(config, "colocation_even_centroids")?,
         },
         solver,
         colocation_guard: attr(config, "colocation_guard")?,
@@ -188,9 +185,7 @@ fn apply_params(
         } else {
             None
         },
-        length_rule: attr(config, "colocation_length_rule")?,
         near_tie_reading: attr(config, "near_tie_reading")?,
-        points_yield: attr(config, "points_yield")?,
     })
 }
 
@@ -578,9 +573,8 @@ impl PyCorrectionEngine {
     /// `*_points[k]`. Lines start at the TLS fit of their observations at `poses`. Returns
     /// `(poses, lines (2K, 2) rows (phi, rho), report)`. The GIL is released while solving.
     #[pyo3(signature = (
-        poses, corrections, *, sigma_f, k1, k2, average_points = false, sigma_scan = 0.0,
-        points_yield = false,
-        even_centroids = false, method = "lm", max_iterations = 100,
+        poses, corrections, *, sigma_f, k1, k2, average_points = false, method = "lm",
+        max_iterations = 100,
         relative_tolerance = 1e-6, absolute_tolerance = 1e-6,
         lambda_initial = 1e-5, robust = None, watchdog_steps = 3
     ))]
@@ -594,9 +588,6 @@ impl PyCorrectionEngine {
         k1: f64,
         k2: f64,
         average_points: bool,
-        sigma_scan: f64,
-        points_yield: bool,
-        even_centroids: bool,
         method: &str,
         max_iterations: usize,
         relative_tolerance: f64,
@@ -637,23 +628,13 @@ impl PyCorrectionEngine {
         drop(poses);
         let weights = HumanWeights {
             sigma_f,
-            sigma_scan,
             k1,
             k2,
             average_points,
-            even_centroids,
         };
         let engine = &mut self.inner;
         let (values, report) = py
-            .detach(|| {
-                guarded(|| {
-                    if points_yield {
-                        engine.solve_yielding(start, &specs, &weights, &params)
-                    } else {
-                        engine.solve(start, &specs, &weights, &params)
-                    }
-                })
-            })
+            .detach(|| guarded(|| engine.solve(start, &specs, &weights, &params)))
             .map_err(|e| to_py(py, e))?;
         Ok(solved_out(py, &values, report))
     }

@@ -475,7 +475,7 @@ impl PyGraph {
     /// Adds one human correction (docs/ALGORITHM.md §4.3): two line variables, the point-to-line
     /// factors R_a / R_b (one block per observing pose) and the relation R_p. `*_poses[k]` is the
     /// pose that observed robot-frame point `*_points[k]`. Returns the two line indices.
-    #[pyo3(signature = (mode, a_poses, a_points, b_poses, b_points, *, sigma_f, k1, k2, average_points = false, sigma_scan = 0.0))]
+    #[pyo3(signature = (mode, a_poses, a_points, b_poses, b_points, *, sigma_f, k1, k2, average_points = false))]
     #[allow(clippy::too_many_arguments)]
     fn add_correction(
         &mut self,
@@ -489,7 +489,6 @@ impl PyGraph {
         k1: f64,
         k2: f64,
         average_points: bool,
-        sigma_scan: f64,
     ) -> PyResult<(usize, usize)> {
         let (ap, aq, bp, bq) = (
             a_poses.as_array(),
@@ -508,17 +507,14 @@ impl PyGraph {
             spec.validate(n)?;
             let weights = HumanWeights {
                 sigma_f,
-                sigma_scan,
                 k1,
                 k2,
                 average_points,
-                even_centroids: false,
             };
             weights.validate()?;
-            // Build every factor first so that a bad input adds nothing. (No poses here: every
-            // point counts alike in the centroids, as the paper's R_p.)
+            // Build every factor first so that a bad input adds nothing.
             let la = graph.num_lines();
-            let factors = spec.factors(la, &weights, None)?;
+            let factors = spec.factors(la, &weights)?;
             graph.add_line();
             let lb = graph.add_line();
             for f in factors {
