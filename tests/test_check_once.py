@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +30,7 @@ from hitl_slam.sim.fault_models import damaged
 
 
 @pytest.fixture
-def matches(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[int]]:
+def matches(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     """The scan pairs matched (one entry per call into the core: its number of pairs)."""
     calls: list[int] = []
     real = _core.match_consecutive
@@ -41,7 +40,7 @@ def matches(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[int]]:
         return real(points, offsets, guesses, **kw)
 
     monkeypatch.setattr(_core, "match_consecutive", counted)
-    yield calls
+    return calls
 
 
 def _jumped(seed: int) -> Any:
@@ -86,7 +85,8 @@ def test_a_front_end_map_is_never_matched_again(matches: list[int]) -> None:
     result = slam(lost_poses_room(0).map)
     m = result.map
     steps = m.metadata["front_end_steps"]
-    assert steps.dtype == np.uint8 and np.array_equal(steps, result.steps)
+    assert steps.dtype == np.uint8
+    assert np.array_equal(steps, result.steps)
     assert with_stored_check(m) is m  # nothing to store
     assert checked_map(m) is m  # its chain edges are its scan matches
     assert np.array_equal(unchecked_steps(m), steps[1:] == StepKind.FAILED)
@@ -101,7 +101,8 @@ def test_a_front_end_map_is_never_matched_again(matches: list[int]) -> None:
 def test_a_stored_check_of_other_scans_or_another_setting_is_not_used() -> None:
     scenario = _jumped(6)
     m = with_stored_check(scenario.map)
-    assert m is not scenario.map and stored_check(m) is not None
+    assert m is not scenario.map
+    assert stored_check(m) is not None
     moved = dataclasses.replace(m, points=m.points + 0.01)
     assert stored_check(moved) is None  # other scans: checked again
     assert stored_check(m, DEFAULT.replace(odometry_check=20.0)) is None
