@@ -26,7 +26,7 @@ def test_unchecked_steps_are_the_steps_the_check_did_not_match() -> None:
     assert np.array_equal(u, ~check_odometry(m).matched)
     assert 0 < u.sum() < u.size  # the room's 1.5 m scans match about half of its steps
     assert not u.flags.writeable
-    off = DEFAULT.replace(odometry_check=0.0, odometry_fuse=0.0)
+    off = DEFAULT.replace(odometry_check=0.0)
     assert not unchecked_steps(m, off).any()
 
 

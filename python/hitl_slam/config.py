@@ -97,12 +97,6 @@ class Config:
     # widened by the disagreement, so a correction puts its error there (a heading fault)
     # instead of spreading it over the loop
     odometry_check: float = 10.83
-    # and every other step whose scans agree with it (squared Mahalanobis distance of the
-    # heading at most this, e.g. 9; 0 = off, the default) gets the information-weighted mean of
-    # the two turns: a slow bend or drift, too small per step to contradict any one step, is
-    # then partly taken out where it came in. Off: it made fewer corrections worse in the full
-    # evaluation but Freiburg 079 worse in the standard one (docs/ALGORITHM.md §I.5)
-    odometry_fuse: float = 0.0
     # a drawing whose segment lay between two lines of nearly equal score (its snap a near tie,
     # docs/ALGORITHM.md §I.1) and whose reading contradicts earlier corrections (one of them, or
     # the new one, would yield, §I.8) is read again with that segment on the other line; the
@@ -218,6 +212,7 @@ _REMOVED: dict[str, bool | float] = {
     "colocation_even_centroids": False,
     "colocation_length_rule": False,
     "align_max_contradicted_local": 1.0,
+    "odometry_fuse": 0.0,
 }
 """Options measured and not kept, deleted from :class:`Config`, each with the value it had when
 off: a stored configuration may still name them with that value (:meth:`Config.from_dict`)."""

@@ -80,13 +80,6 @@ STORED_TURNS = "odometry_check_turns"  # float64 (R, 2): that turn [rad] and its
 STORED_FINGERPRINT = "odometry_check_fingerprint"  # int64 (3,): what it was computed from
 STORED_KEYS = (STORED_SETTING, STORED_MATCHED, STORED_STEPS, STORED_TURNS, STORED_FINGERPRINT)
 
-FUSE_OVERLAP = 0.5
-"""A step is fused with its scan match only when at least half of the scan's points paired: the
-fused turn trusts the match, and in clutter (Freiburg 079, where a quarter of the matches pair
-under 41% of their points) a loosely overlapping match can agree with the odometry within its
-noise and still be biased by what moved."""
-
-
 @dataclass(frozen=True)
 class OdometryCheck:
     """Per chain step k -> k+1 (``N - 1`` rows): whether the scans matched (``matched``), the
@@ -211,9 +204,7 @@ def check_odometry(
     squared disagreement. Only the heading: a scan match along a corridor or among repeated
     structure can be off by a metre along it while its turn is right, and heading faults (a
     gyro, a wheel slip while turning) are the ones that bend a whole map. A step is widened only
-    when the matches two steps apart across it confirm the fault (:func:`_confirmed`). A step
-    whose scans agree with it (distance at most ``config.odometry_fuse``) takes the
-    information-weighted mean of both turns, with the fused variance.
+    when the matches two steps apart across it confirm the fault (:func:`_confirmed`).
 
     A map the front end built is not matched again: its chain edges are its scan matches, so
     none is contradicted, and the steps it could not match are the unchecked ones.
@@ -233,7 +224,7 @@ def check_odometry(
             measurements=map.measurements,
             information=map.information,
         )
-    matched, found, cov, overlap = _match_chain(map, guesses, progress)
+    matched, found, cov, _ = _match_chain(map, guesses, progress)
     info = map.information.copy()
     measurements = map.measurements.copy()
     distance2 = np.full(rows.shape[0], math.nan)
@@ -258,18 +249,6 @@ def check_odometry(
             info[row] = _turn_variance_replaced(odo_cov, float(cov[k, 2, 2]))
             measurements[row, 2] = found[k, 2]
             relaxed.append(int(row))
-        elif (
-            config.odometry_fuse > 0
-            and d2 <= config.odometry_fuse
-            and float(overlap[k]) >= FUSE_OVERLAP
-        ):
-            # The scans agree with the step within their noise: its turn becomes the
-            # information-weighted mean of the two (a slow bend or drift biases every step a
-            # little; the scans, unbiased, take a share of it out at each step).
-            s_var = float(cov[k, 2, 2])
-            gain = odo_var / (odo_var + s_var)
-            info[row] = _turn_variance_replaced(odo_cov, odo_var * s_var / (odo_var + s_var))
-            measurements[row, 2] = map.measurements[row, 2] - gain * r
     if relaxed:
         steps = ", ".join(
             f"{int(map.edges[r, 0])}->{int(map.edges[r, 1])}" for r in relaxed[:8]
@@ -317,9 +296,8 @@ def _stored_arrays(map: Map, check: OdometryCheck, config: Config) -> dict[str, 
 
 
 def _stores(config: Config) -> bool:
-    """Whether the check's outcome under ``config`` is one that is stored: the check on, the
-    fusion off (a fused chain changes every agreeing step)."""
-    return config.odometry_check > 0 and config.odometry_fuse <= 0
+    """Whether there is a check's outcome to store under ``config``: the check is on."""
+    return config.odometry_check > 0
 
 
 def with_stored_check(
@@ -398,17 +376,17 @@ def stored_check(map: Map, config: Config = DEFAULT) -> tuple[Map, NDArray[np.bo
     return out, unchecked
 
 
-_CACHE: dict[int, tuple[weakref.ref[Map], tuple[float, float], Map, NDArray[np.bool_]]] = {}
+_CACHE: dict[int, tuple[weakref.ref[Map], float, Map, NDArray[np.bool_]]] = {}
 
 
 def checked_map(map: Map, config: Config = DEFAULT) -> Map:
     """``map`` with its edges' information widened where the scans contradict the odometry
     (:func:`check_odometry`), computed once per map and threshold; ``map`` itself when the
     check is off. Same poses, points and edges: only the information differs."""
-    if (config.odometry_check <= 0 and config.odometry_fuse <= 0) or map.num_poses < 2:
+    if config.odometry_check <= 0 or map.num_poses < 2:
         return map
     key = id(map)
-    settings = (config.odometry_check, config.odometry_fuse)
+    settings = config.odometry_check
     hit = _CACHE.get(key)
     if hit is not None and hit[0]() is map and hit[1] == settings:
         return hit[2]
@@ -437,7 +415,7 @@ def unchecked_steps(map: Map, config: Config = DEFAULT) -> NDArray[np.bool_]:
     """``(N - 1,)`` read-only: the chain steps k -> k+1 that the scans could not check (no
     match: too little overlap, a featureless view), where a fault can hide from the check; all
     False when the check is off. Computed with :func:`checked_map`, once per map."""
-    if (config.odometry_check <= 0 and config.odometry_fuse <= 0) or map.num_poses < 2:
+    if config.odometry_check <= 0 or map.num_poses < 2:
         return np.zeros(max(map.num_poses - 1, 0), dtype=bool)
     checked_map(map, config)
     return _CACHE[id(map)][3]
