@@ -35,7 +35,7 @@ from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected
 
 try:
-    from hitl_slam.geometry import principal_axes, wrap
+    from hitl_slam.geometry import wrap
 except ImportError:  # an older build timed with --baseline: it only replays saved states
     from hitl_slam.map import wrap  # type: ignore[attr-defined,no-redef]
 from hitl_slam.map import Map
@@ -189,57 +189,13 @@ def fr079_case(repeats: int, log: Callable[[str], None]) -> dict[str, object] | 
     scans = [m.points[m.offsets[i] : m.offsets[i + 1]] for i in range(n)]
     m = Map.from_poses_and_scans(damaged, scans, name="fr079-damaged")
     fault = 400
+    from revisits import WallDrawer, revisit_pairs
+
     # Revisits: pairs (early i, late j) whose TRUE positions are within 0.5 m.
-    pairs = []
-    for i in range(0, n - 1000, 20):
-        late = np.arange(i + 800, n, 5)
-        d = np.hypot(*(truth[late, :2] - truth[i, :2]).T)
-        if d.min() < 0.5:
-            pairs.append((int(i), int(late[int(np.argmin(d))])))
+    pairs = revisit_pairs(truth)
     del fault
-    rng = np.random.default_rng(11)
-    true_world = m.world_points(truth)
-    owner = m.pose_of_point()
-
-    def wall_segment(poses: FloatArray, i: int, j: int) -> DrawnCorrection:
-        # The longest straight run seen by scan i (in truth), then where scans near i and near j
-        # show it on the current map.
-        pts = true_world[(owner == i)]
-        best = None
-        for _ in range(60):
-            p, q = pts[rng.integers(len(pts), size=2)]
-            d = q - p
-            if np.hypot(*d) < 0.5:
-                continue
-            nrm = np.array([-d[1], d[0]]) / np.hypot(*d)
-            inl = np.abs((pts - p) @ nrm) < 0.03
-            if best is None or inl.sum() > best[0]:
-                best = (int(inl.sum()), p, nrm)
-        if best is None or best[0] < 20:
-            raise ValueError("no wall in view")
-        _, p, nrm = best
-        world_now = m.world_points(poses)
-
-        def seg(lo: int, hi: int) -> list[list[float]]:
-            sel = (owner >= lo) & (owner < hi) & (np.abs((true_world - p) @ nrm) < 0.03)
-            sel &= np.hypot(*(true_world - p).T) < 2.0
-            w = world_now[sel]
-            if len(w) < 20:
-                raise ValueError("wall barely seen")
-            centre, _, dirn = principal_axes(w)
-            proj = (w - centre) @ dirn
-            lo_q, hi_q = np.quantile(proj, [0.2, 0.8])
-            return [
-                list(map(float, centre + t * dirn + rng.normal(0, 0.05, 2))) for t in (lo_q, hi_q)
-            ]
-
-        a, b = seg(i - 3, i + 4), seg(j - 3, j + 4)
-        # A person corrects only what looks wrong.
-        if np.hypot(*np.subtract(np.mean(a, 0), np.mean(b, 0))) < 0.1:
-            raise ValueError("already consistent here")
-        return DrawnCorrection.make(a, b, Mode.COLOCATION)
-
-    candidates = [lambda poses, i=i, j=j: wall_segment(poses, i, j) for i, j in pairs]
+    drawer = WallDrawer(m, truth, 11)
+    candidates = [lambda poses, i=i, j=j: drawer.draw(poses, i, j) for i, j in pairs]
     log(f"fr079: {n} poses, {m.num_points} points, {len(pairs)} revisit pairs")
     timed = None
     if "fr079" in LOADED:

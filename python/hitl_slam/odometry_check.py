@@ -80,6 +80,7 @@ STORED_TURNS = "odometry_check_turns"  # float64 (R, 2): that turn [rad] and its
 STORED_FINGERPRINT = "odometry_check_fingerprint"  # int64 (3,): what it was computed from
 STORED_KEYS = (STORED_SETTING, STORED_MATCHED, STORED_STEPS, STORED_TURNS, STORED_FINGERPRINT)
 
+
 @dataclass(frozen=True)
 class OdometryCheck:
     """Per chain step k -> k+1 (``N - 1`` rows): whether the scans matched (``matched``), the
