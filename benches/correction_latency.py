@@ -25,6 +25,7 @@ import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -40,6 +41,11 @@ except ImportError:  # an older build timed with --baseline: it only replays sav
     from hitl_slam.map import wrap  # type: ignore[attr-defined,no-redef]
 from hitl_slam.map import Map
 from hitl_slam.pipeline import apply_correction
+
+try:
+    from hitl_slam.workspace import Workspace
+except ImportError:  # a build before workspaces, timed with --baseline
+    Workspace = None  # type: ignore[assignment,misc]
 from hitl_slam.sim.corridor import (
     OUTER_BOTTOM,
     OUTER_LEFT,
@@ -64,12 +70,29 @@ def _time(apply: Callable[[], object], repeats: int) -> list[float]:
     return out
 
 
+HELD: dict[int, Any] = {}
+"""Per map (by its number of poses: one map per case), the workspace its corrections share, as
+a session's do (builds from before workspaces keep their engines themselves)."""
+
+
+def _apply(
+    m: Map, poses: FloatArray, drawn: DrawnCorrection, active: Sequence[Interpretation]
+) -> Any:
+    """``apply_correction`` as a session calls it: with the map's workspace."""
+    if Workspace is None:
+        return apply_correction(m, poses, drawn, active, DEFAULT)
+    held = HELD.setdefault(m.num_poses, Workspace(m))
+    return apply_correction(m, poses, drawn, active, DEFAULT, workspace=held)
+
+
 def _forget_analyses() -> None:
     """Each timed correction pays for its own symbolic analysis, as a new correction in a
     session does (the engine keeps the analyses of recent structures, which would make every
     repeat after the first a cache hit). Builds without an engine have nothing to forget."""
-    engines = getattr(pipeline, "_ENGINES", {})
-    for entry in engines.values():
+    for held in HELD.values():
+        for engine in held.engines():
+            engine.clear_cache()
+    for entry in getattr(pipeline, "_ENGINES", {}).values():  # builds before workspaces
         entry[1].clear_cache()
 
 
@@ -96,7 +119,7 @@ def _build_history(
     while remaining and len(active) < wanted:
         draw = remaining.pop(0)
         try:
-            result = apply_correction(m, poses, draw(poses), active, DEFAULT)
+            result = _apply(m, poses, draw(poses), active)
         except (CorrectionRejected, ValueError) as exc:
             log(f"  (skipped a drawing: {str(exc).splitlines()[0]})")
             continue
@@ -145,7 +168,7 @@ def corridor_case(repeats: int, log: Callable[[str], None]) -> dict[str, object]
         for draw in remaining:
             drawing = draw(poses)
             try:
-                apply_correction(m, poses, drawing, active, DEFAULT)
+                _apply(m, poses, drawing, active)
             except CorrectionRejected:
                 continue
             timed = drawing
@@ -153,9 +176,9 @@ def corridor_case(repeats: int, log: Callable[[str], None]) -> dict[str, object]
     if timed is None:
         raise RuntimeError("no drawing left for the timed correction")
     STATES["corridor"] = (poses, active, timed)
-    TIMERS["corridor"] = lambda: apply_correction(m, poses, timed, active, DEFAULT)
-    times = _time(lambda: apply_correction(m, poses, timed, active, DEFAULT), repeats)
-    last = apply_correction(m, poses, timed, active, DEFAULT)
+    TIMERS["corridor"] = lambda: _apply(m, poses, timed, active)
+    times = _time(lambda: _apply(m, poses, timed, active), repeats)
+    last = _apply(m, poses, timed, active)
     return {
         "case": "corridor",
         "map": "generated corridor building (hitl_slam.sim.corridor_loop, 11.6 laps)",
@@ -205,7 +228,7 @@ def fr079_case(repeats: int, log: Callable[[str], None]) -> dict[str, object] | 
         for draw in remaining:
             try:
                 drawing = draw(poses)
-                apply_correction(m, poses, drawing, active, DEFAULT)
+                _apply(m, poses, drawing, active)
             except (CorrectionRejected, ValueError):
                 continue
             timed = drawing
@@ -214,9 +237,9 @@ def fr079_case(repeats: int, log: Callable[[str], None]) -> dict[str, object] | 
         log("fr079: no drawing left for the timed correction")
         return None
     STATES["fr079"] = (poses, active, timed)
-    TIMERS["fr079"] = lambda: apply_correction(m, poses, timed, active, DEFAULT)
-    times = _time(lambda: apply_correction(m, poses, timed, active, DEFAULT), repeats)
-    last = apply_correction(m, poses, timed, active, DEFAULT)
+    TIMERS["fr079"] = lambda: _apply(m, poses, timed, active)
+    times = _time(lambda: _apply(m, poses, timed, active), repeats)
+    last = _apply(m, poses, timed, active)
     return {
         "case": "fr079",
         "map": (

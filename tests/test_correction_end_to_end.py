@@ -150,15 +150,21 @@ def _core_calls(fn: Callable[[], object]) -> list[str]:
 def test_one_correction_crosses_into_the_core_once(world: World) -> None:
     """Issue 12: interpretation, explicit correction, back-propagation, the joint solve with
     every earlier correction, and both guards are one call into the core (after the map's
-    one-time set-up: its scans, its engine and the odometry check, held per map)."""
+    one-time set-up: its scans, its engine and the odometry check, held by the workspace a
+    session keeps)."""
+    from hitl_slam.workspace import Workspace
+
     m = world.map
-    first = apply_correction(m, m.poses, _draw(world, Mode.PARALLEL), (), DEFAULT)
+    held = Workspace(m)
+    first = apply_correction(m, m.poses, _draw(world, Mode.PARALLEL), (), DEFAULT, workspace=held)
     rng = np.random.default_rng(5)
     a = drawn_segment(world, first.poses, OUTER_BOTTOM, (0, 60), rng, along=(0.3, 0.7))
     b = drawn_segment(world, first.poses, OUTER_BOTTOM, (265, 325), rng, along=(0.3, 0.7))
     drawn = DrawnCorrection.make(a, b, Mode.COLOCATION)
     calls = _core_calls(
-        lambda: apply_correction(m, first.poses, drawn, [first.interpretation], DEFAULT)
+        lambda: apply_correction(
+            m, first.poses, drawn, [first.interpretation], DEFAULT, workspace=held
+        )
     )
     assert calls == ["CorrectionEngine.apply"], calls
     # A refused drawing too: one call, which refuses.
@@ -166,11 +172,14 @@ def test_one_correction_crosses_into_the_core_once(world: World) -> None:
 
     def refused() -> None:
         with pytest.raises(CorrectionRejected):
-            apply_correction(m, first.poses, far, [first.interpretation], DEFAULT)
+            apply_correction(m, first.poses, far, [first.interpretation], DEFAULT, workspace=held)
 
     assert _core_calls(refused) == ["CorrectionEngine.apply"]
     # The hook sees calls into the core: the interpretation alone is one call of its own.
-    assert _core_calls(lambda: interpret(m, first.poses, drawn)) == ["MapScans.interpret"]
+    scans = held.scans()
+    assert _core_calls(lambda: interpret(m, first.poses, drawn, scans=scans)) == [
+        "MapScans.interpret"
+    ]
 
 
 BAD_DRAWINGS = {

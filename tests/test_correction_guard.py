@@ -133,9 +133,10 @@ def test_a_result_beyond_the_odometry_noise_is_tried_again_or_refused(seed: int)
     import dataclasses
 
     from hitl_slam.full_evaluation import LASER, _base_scenario
-    from hitl_slam.interpret import checked_drawing, from_core, interpret, map_scans
+    from hitl_slam.interpret import checked_drawing, from_core, interpret
     from hitl_slam.pipeline import correction_engine, explicit_and_backpropagate, solve_all
     from hitl_slam.sim.fault_models import damaged
+    from hitl_slam.workspace import Workspace
 
     if not (LASER / "seattle-corrected.log.gz").is_file():
         pytest.skip("../shared/datasets/laser is not beside the repository")
@@ -153,14 +154,15 @@ def test_a_result_beyond_the_odometry_noise_is_tried_again_or_refused(seed: int)
             break
     assert drawn is not None
     h = interpret(m, poses, drawn)
-    engine = correction_engine(m)
+    held = Workspace(m)
+    engine, _ = correction_engine(m, held)
     seg_a, seg_b, sigma_h = checked_drawing(drawn, DEFAULT)
 
     def guard(h: Interpretation, new_poses: NDArray[np.float64]) -> object:
         """The core's guard on ``h`` solved to ``new_poses``: None (apply as is), or the
         alternative (interpretation, poses); CorrectionRejected with the figures."""
         return engine._consistency_guard(
-            map_scans(m),
+            held.scans(),
             poses,
             seg_a,
             seg_b,
@@ -181,8 +183,8 @@ def test_a_result_beyond_the_odometry_noise_is_tried_again_or_refused(seed: int)
             consistency_z=NormalDist().inv_cdf(DEFAULT.consistency_guard),
         )
 
-    moved, _ = explicit_and_backpropagate(m, poses, h)
-    good, _, _ = solve_all(m, [h], DEFAULT, moved)
+    moved, _ = explicit_and_backpropagate(m, poses, h, workspace=held)
+    good, _, _ = solve_all(m, [h], DEFAULT, moved, workspace=held)
     limit = chi2_limit(3 * m.edges.shape[0], DEFAULT.consistency_guard)
     assert engine.base_chi2(good) < limit
     assert guard(h, good) is None  # within the noise: untouched

@@ -16,6 +16,7 @@ from hitl_slam.odometry_check import check_odometry, checked_map
 from hitl_slam.sim import HeadingDrift, HeadingJump, parallel_corridors
 from hitl_slam.sim.fault_models import damaged
 from hitl_slam.sim.odometry import relative_motions
+from hitl_slam.workspace import Workspace
 
 
 @pytest.mark.parametrize(
@@ -59,7 +60,9 @@ def test_slow_drift_widens_nothing_and_the_check_can_be_turned_off() -> None:
     assert checked_map(jumped.map, off) is jumped.map
     checked = checked_map(jumped.map)
     assert checked is not jumped.map
-    assert checked_map(jumped.map) is checked  # computed once
+    held = Workspace(jumped.map)  # what a session keeps: the check, made once
+    assert held.checked(jumped.map)[0] is held.checked(jumped.map)[0]
+    assert np.array_equal(held.checked(jumped.map)[0].information, checked.information)
     assert np.array_equal(checked.poses, jumped.map.poses)
     assert not np.array_equal(checked.information, jumped.map.information)
     assert not np.array_equal(checked.measurements, jumped.map.measurements)

@@ -859,7 +859,7 @@ def fakes(monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, bytes]]:
         return real_load(path) if str(path).endswith(".hitl") else tiny_map()
 
     monkeypatch.setattr(hitl_slam.io.maps, "load_map", load)
-    monkeypatch.setattr(hitl_slam.session, "_default_applier", lambda: fake_applier)
+    monkeypatch.setattr(hitl_slam.session, "_default_applier", lambda _workspace: fake_applier)
     return written
 
 

@@ -249,9 +249,13 @@ def test_the_current_map_and_a_save_leave_rejected_loop_closures_out(
 
 
 def test_effective_maps_are_made_once_per_set_and_share_the_observations(loops_map: Map) -> None:
+    from hitl_slam.workspace import Workspace
+
     assert effective_map(loops_map, frozenset()) is loops_map
-    a = effective_map(loops_map, frozenset({1, FALSE_LOOP}))
-    assert effective_map(loops_map, frozenset({FALSE_LOOP, 1})) is a
+    held = Workspace(loops_map)  # what a session keeps: each set's map, made once
+    a = held.graph(frozenset({1, FALSE_LOOP}))
+    assert held.graph(frozenset({FALSE_LOOP, 1})) is a
+    assert np.array_equal(a.edges, effective_map(loops_map, frozenset({1, FALSE_LOOP})).edges)
     assert np.shares_memory(a.points, loops_map.points)
     assert a.edges.shape[0] == loops_map.edges.shape[0] - 2
     with pytest.raises(InputError, match="no loop closure 9"):

@@ -170,6 +170,49 @@ def test_undo_restores_the_map_exactly_and_redo_brings_it_back(
     assert page.errors == []
 
 
+SLOW_CORRECTIONS = """
+(() => {
+  const real = window.fetch.bind(window);
+  window.fetch = async (input, init) => {
+    const answer = await real(input, init);
+    if (String(input).endsWith("api/corrections") && init && init.method === "POST") {
+      await new Promise((resolve) => setTimeout(resolve, 1500));
+    }
+    return answer;
+  };
+})();
+"""
+"""The page's fetch holding each correction's answer 1.5 s: a long solve, as on a big map."""
+
+
+def test_a_key_pressed_during_a_long_correction_waits_says_so_and_runs_after_it(
+    browser: Any, demo: Server, first_correction: DrawnCorrection
+) -> None:
+    """Issue 40: u pressed while a correction solves is not dropped. It is queued, the page says
+    so, and it undoes the correction once that is in."""
+    page = open_page(browser, demo.url, init_script=SLOW_CORRECTIONS)
+    original = demo.poses_bytes()
+    focus_on(page, first_correction)
+    page.keyboard.press("p")
+    draw_pair(page, first_correction, ["Shift"])
+    page.wait_for_function("window.hitl.highlighted().a > 0 && window.hitl.highlighted().b > 0")
+    page.keyboard.press("p")
+    page.wait_for_function("window.hitl.busy")
+    page.keyboard.press("u")
+    assert page.evaluate("window.hitl.queued") == ["undo"]
+    assert page.evaluate("window.hitl.message.text") == "queued: undo (after the correction)"
+    page.wait_for_function(
+        "!window.hitl.busy && window.hitl.queued.length === 0"
+        " && window.hitl.message.text === 'undone'",
+        timeout=60_000,
+    )
+    assert demo.poses_bytes() == original
+    state = demo.state()
+    assert state["applied"] == 0
+    assert state["can_redo"]
+    assert page.errors == []
+
+
 def test_a_drawing_over_empty_space_is_rejected_and_changes_nothing(
     browser: Any, demo: Server
 ) -> None:

@@ -199,10 +199,15 @@ def serve(
 # -- the page ------------------------------------------------------------------------------------
 
 
-def open_page(browser: Any, url: str, *, timeout_ms: float = 60_000) -> Any:
+def open_page(
+    browser: Any, url: str, *, timeout_ms: float = 60_000, init_script: str | None = None
+) -> Any:
     """A new page (own context, 1280 x 800, device pixel ratio 1) on ``url``, after its first
-    frame with the map. Uncaught page errors are collected in ``page.errors``."""
+    frame with the map. Uncaught page errors are collected in ``page.errors``. ``init_script``
+    runs in the page before its own scripts."""
     context = browser.new_context(viewport=VIEWPORT, device_scale_factor=1)
+    if init_script is not None:
+        context.add_init_script(init_script)
     page = context.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda exc: errors.append(str(exc)))

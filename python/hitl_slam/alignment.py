@@ -183,10 +183,9 @@ def aligned_map(
 ) -> Map:
     """``map`` (its poses, scans and metadata) with its factors replaced by an alignment's. The
     map's loop closures (if it lists any) are not among them: an alignment's are its own."""
-    from hitl_slam.interpret import share_scans
     from hitl_slam.loop_closures import KEYS
 
-    out = dataclasses.replace(
+    return dataclasses.replace(
         map,
         edges=np.ascontiguousarray(edges, dtype=np.int64),
         measurements=np.ascontiguousarray(measurements, dtype=np.float64),
@@ -194,8 +193,6 @@ def aligned_map(
         information_source=np.full(edges.shape[0], InformationSource.INPUT, dtype=np.int8),
         metadata={k: v for k, v in map.metadata.items() if k not in KEYS},
     )
-    share_scans(map, out)
-    return out
 
 
 def _contradicts_odometry(k: int, steps: int, config: Config) -> AlignmentRefused:
@@ -228,6 +225,7 @@ def align(
     """
     from hitl_slam.pipeline import solve_all
     from hitl_slam.slam import slam
+    from hitl_slam.workspace import Workspace
 
     n = map.num_poses
     if n < 2 or map.num_points < _MIN_POINTS_PER_SCAN * n:
@@ -263,9 +261,10 @@ def align(
     best: tuple[float, float, FloatArray, FloatArray, SolveReport] | None = None
     limit = config.align_max_overruled * len(active)
     setaside: list[tuple[float, int]] = []  # (Phi, statements overruled)
+    held = Workspace(graph)  # one engine for every candidate's solve
     for phi in relation_candidates(config) if active else (config.align_relation_dcs,):
         x, lines_x, report_x = solve_all(
-            graph, active, aligned_config(config, phi), start=graph.poses
+            graph, active, aligned_config(config, phi), start=graph.poses, workspace=held
         )
         x = np.asarray(x, dtype=np.float64)
         if x.shape != (n, 3) or not np.isfinite(x).all():

@@ -8,9 +8,6 @@ and holds each map's scans there once (:func:`map_scans`).
 from __future__ import annotations
 
 import math
-import threading
-import weakref
-from functools import partial
 from typing import Any
 
 import numpy as np
@@ -48,41 +45,12 @@ docs/ALGORITHM.md §3.3): a drawing a few sigma_em beside its wall lets the line
 still climbs from near zero, and stopping there would leave every weight under 0.5. (The core's
 ``interpretation::TOLERANCE_MIXING``.)"""
 
-_SCANS: dict[int, tuple[weakref.ref[Map], _core.MapScans]] = {}
-_SCANS_LOCK = threading.Lock()
-
 
 def map_scans(map: Map) -> _core.MapScans:
-    """``map``'s scans held in the core once per map object (robot-frame points, offsets, and
-    the bounding circles of their blocks, so a drawing reads only the scans that reach it)."""
-    key = id(map)
-    with _SCANS_LOCK:
-        hit = _SCANS.get(key)
-        if hit is not None and hit[0]() is map:
-            return hit[1]
-        scans = _core.MapScans(map.points, map.offsets)
-        _SCANS[key] = (weakref.ref(map, partial(_forget, key)), scans)
-        return scans
-
-
-def _forget(key: int, _ref: object) -> None:
-    _SCANS.pop(key, None)
-
-
-def share_scans(source: Map, target: Map) -> None:
-    """Holds ``target``'s scans as ``source``'s (built for it if need be): for a map that shares
-    ``source``'s points and offsets (the same map with other factors), so they are not built
-    twice."""
-    if not (
-        target.points.shape == source.points.shape
-        and np.may_share_memory(target.points, source.points)
-        and np.array_equal(target.offsets, source.offsets)
-    ):
-        raise ValueError("share_scans needs maps with the same points and offsets")
-    scans = map_scans(source)
-    key = id(target)
-    with _SCANS_LOCK:
-        _SCANS[key] = (weakref.ref(target, partial(_forget, key)), scans)
+    """``map``'s scans held in the core (robot-frame points, offsets, and the bounding circles
+    of their blocks, so a drawing reads only the scans that reach it). A session keeps them in
+    its :class:`~hitl_slam.workspace.Workspace`; this makes them anew."""
+    return _core.MapScans(map.points, map.offsets)
 
 
 def interpret(
@@ -93,6 +61,7 @@ def interpret(
     *,
     visit_gap: int | None = None,
     nearest_visits: bool = False,
+    scans: _core.MapScans | None = None,
 ) -> Interpretation:
     """What the person meant by ``drawn`` on the map shown with ``poses`` (docs/ALGORITHM.md §3).
 
@@ -104,6 +73,8 @@ def interpret(
     swapping if needed) or reject interleaved sets. Drawing direction does not matter.
     ``nearest_visits``: choose both segments' visits jointly, each the pass nearest its drawing
     (docs/ALGORITHM.md §I.2), even where the design's rules would keep the biggest.
+    ``scans``: the map's scans held in the core (:func:`map_scans`, or a workspace's), if the
+    caller has them.
 
     Raises:
         CorrectionRejected: the drawing cannot be turned into a correction (the reason says
@@ -123,7 +94,7 @@ def interpret(
     if visit_gap < 0:
         raise InputError(f"visit_gap must be a number of poses >= 0, got {visit_gap}")
     seg_a, seg_b, sigma_h = checked_drawing(drawn, config)
-    t = map_scans(map).interpret(
+    t = (map_scans(map) if scans is None else scans).interpret(
         poses,
         seg_a,
         seg_b,

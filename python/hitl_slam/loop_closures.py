@@ -14,12 +14,8 @@ check of the chain) taken from the full map instead of recomputed.
 from __future__ import annotations
 
 import dataclasses
-import threading
-import weakref
-from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass
-from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
@@ -165,22 +161,13 @@ def loop_closure_metadata(
     }
 
 
-_Derived = OrderedDict[frozenset[int], Map]
-_EFFECTIVE: dict[int, tuple[weakref.ref[Map], _Derived]] = {}
-_LOCK = threading.Lock()
-
-
-def _forget(key: int, _ref: object) -> None:
-    _EFFECTIVE.pop(key, None)
-
-
 def effective_map(map: Map, rejected: frozenset[int]) -> Map:
     """``map`` without the edges of the loop closures ``rejected`` (indices into its
     :class:`LoopClosureTable`): ``map`` itself when none is rejected, otherwise a Map sharing its
-    poses, points and metadata-free observation arrays, made once per set and kept while
-    ``map`` lives (the last few sets). The loop closures left in it are listed in its metadata
-    with their new edge rows, none marked as rejected by the front end (this map is what a person
-    chose); the corrections of a session solve over it.
+    poses, points and metadata-free observation arrays (a session's
+    :class:`~hitl_slam.workspace.Workspace` keeps the ones it uses). The loop closures left in
+    it are listed in its metadata with their new edge rows, none marked as rejected by the front
+    end (this map is what a person chose); the corrections of a session solve over it.
 
     Raises:
         InputError: an index that is not one of the map's loop closures.
@@ -194,29 +181,21 @@ def effective_map(map: Map, rejected: frozenset[int]) -> Map:
         raise InputError(
             f"{map.name}: no loop closure {bad[0] if bad else min(rejected)} (it has {count})"
         )
-    key = id(map)
-    with _LOCK:
-        hit = _EFFECTIVE.get(key)
-        if hit is None or hit[0]() is not map:
-            hit = (weakref.ref(map, partial(_forget, key)), OrderedDict())
-            _EFFECTIVE[key] = hit
-        derived = hit[1]
-        found = derived.get(rejected)
-        if found is not None:
-            derived.move_to_end(rejected)
-            return found
-    out = _derive(map, table, rejected)
-    with _LOCK:
-        derived[rejected] = out
-        while len(derived) > _CACHE_SIZE:
-            derived.popitem(last=False)
-    return out
+    return _derive(map, table, rejected)
+
+
+def kept_edges(map: Map, rejected: frozenset[int]) -> NDArray[np.bool_]:
+    """Which of ``map``'s edges :func:`effective_map` keeps without the loop closures
+    ``rejected`` (checked there)."""
+    keep = np.ones(map.edges.shape[0], dtype=bool)
+    table = LoopClosureTable.of(map)
+    if rejected and table is not None:
+        keep[table.edges[sorted(rejected)]] = False
+    return keep
 
 
 def _derive(map: Map, table: LoopClosureTable, rejected: frozenset[int]) -> Map:
-    drop = table.edges[sorted(rejected)]
-    keep = np.ones(map.edges.shape[0], dtype=bool)
-    keep[drop] = False
+    keep = kept_edges(map, rejected)
     rows = np.full(map.edges.shape[0], -1, dtype=np.int64)
     rows[keep] = np.arange(int(keep.sum()), dtype=np.int64)
     kept = np.array([k for k in range(table.count) if k not in rejected], dtype=np.int64)
@@ -229,7 +208,7 @@ def _derive(map: Map, table: LoopClosureTable, rejected: frozenset[int]) -> Map:
             np.zeros(kept.shape[0], dtype=bool),
         )
     )
-    out = dataclasses.replace(
+    return dataclasses.replace(
         map,
         edges=map.edges[keep],
         measurements=map.measurements[keep],
@@ -237,16 +216,3 @@ def _derive(map: Map, table: LoopClosureTable, rejected: frozenset[int]) -> Map:
         information_source=map.information_source[keep],
         metadata=metadata,
     )
-    _share_chain_work(map, out, keep)
-    return out
-
-
-def _share_chain_work(full: Map, derived: Map, keep: NDArray[np.bool_]) -> None:
-    """Hands ``derived`` what ``full`` already has that loop closures do not change: the scans
-    held in the core, and the odometry check of the chain (which reads the chain edges only, so
-    the derived map's checked edges are the full map's checked edges, less the dropped rows)."""
-    from hitl_slam.interpret import share_scans
-    from hitl_slam.odometry_check import share_check
-
-    share_scans(full, derived)
-    share_check(full, derived, keep)

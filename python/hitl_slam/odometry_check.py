@@ -24,11 +24,9 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-import weakref
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,6 +40,7 @@ from hitl_slam.map import Map
 __all__ = [
     "OdometryCheck",
     "check_odometry",
+    "checked_chain",
     "checked_map",
     "stored_check",
     "unchecked_steps",
@@ -377,87 +376,38 @@ def stored_check(map: Map, config: Config = DEFAULT) -> tuple[Map, NDArray[np.bo
     return out, unchecked
 
 
-_CACHE: dict[int, tuple[weakref.ref[Map], float, Map, NDArray[np.bool_]]] = {}
-
-
 def checked_map(map: Map, config: Config = DEFAULT) -> Map:
     """``map`` with its edges' information widened where the scans contradict the odometry
-    (:func:`check_odometry`), computed once per map and threshold; ``map`` itself when the
-    check is off. Same poses, points and edges: only the information differs."""
-    if config.odometry_check <= 0 or map.num_poses < 2:
-        return map
-    key = id(map)
-    settings = config.odometry_check
-    hit = _CACHE.get(key)
-    if hit is not None and hit[0]() is map and hit[1] == settings:
-        return hit[2]
-    derived = _derived_check(map, config)
-    if derived is None:
-        derived = stored_check(map, config)
-    if derived is None:
-        check = check_odometry(map, config)
-        same = check.measurements is map.measurements and check.information is map.information
-        out = (
-            map
-            if same
-            else dataclasses.replace(
-                map, measurements=check.measurements, information=check.information
-            )
-        )
-        unchecked = ~check.matched
-        unchecked.flags.writeable = False
-    else:
-        out, unchecked = derived
-    _CACHE[key] = (weakref.ref(map, partial(_forget, key)), settings, out, unchecked)
-    return out
+    (:func:`check_odometry`): from the outcome stored with the map, or the front end's own
+    matches, or else matched now (a :class:`~hitl_slam.workspace.Workspace` keeps it); ``map``
+    itself when the check is off or changes nothing. Same poses, points and edges: only the
+    information differs."""
+    return checked_chain(map, config)[0]
 
 
 def unchecked_steps(map: Map, config: Config = DEFAULT) -> NDArray[np.bool_]:
     """``(N - 1,)`` read-only: the chain steps k -> k+1 that the scans could not check (no
     match: too little overlap, a featureless view), where a fault can hide from the check; all
-    False when the check is off. Computed with :func:`checked_map`, once per map."""
+    False when the check is off."""
+    return checked_chain(map, config)[1]
+
+
+def checked_chain(map: Map, config: Config = DEFAULT) -> tuple[Map, NDArray[np.bool_]]:
+    """:func:`checked_map` and :func:`unchecked_steps` at once (one check)."""
     if config.odometry_check <= 0 or map.num_poses < 2:
-        return np.zeros(max(map.num_poses - 1, 0), dtype=bool)
-    checked_map(map, config)
-    return _CACHE[id(map)][3]
-
-
-def _forget(key: int, _ref: object) -> None:
-    _CACHE.pop(key, None)
-
-
-def share_check(full: Map, derived: Map, keep: NDArray[np.bool_]) -> None:
-    """Records that ``derived`` is ``full`` with only the edges ``keep`` marks (the chain among
-    them), so that checking it does not match its scans again: the check reads and changes the
-    chain's edges only, so ``derived``'s checked edges are ``full``'s (computed once, for any
-    number of derived maps), less the dropped rows."""
-    key = id(derived)
-    _DERIVED[key] = (
-        weakref.ref(derived, partial(_forget_derived, key)),
-        weakref.ref(full),
-        np.asarray(keep, dtype=bool),
+        return map, np.zeros(max(map.num_poses - 1, 0), dtype=bool)
+    stored = stored_check(map, config)
+    if stored is not None:
+        return stored
+    check = check_odometry(map, config)
+    same = check.measurements is map.measurements and check.information is map.information
+    out = (
+        map
+        if same
+        else dataclasses.replace(
+            map, measurements=check.measurements, information=check.information
+        )
     )
-
-
-_DERIVED: dict[int, tuple[weakref.ref[Map], weakref.ref[Map], NDArray[np.bool_]]] = {}
-
-
-def _forget_derived(key: int, _ref: object) -> None:
-    _DERIVED.pop(key, None)
-
-
-def _derived_check(map: Map, config: Config) -> tuple[Map, NDArray[np.bool_]] | None:
-    """:func:`checked_map` of a map registered by :func:`share_check`, from its full map's, and
-    the full map's unchecked steps (the same chain)."""
-    hit = _DERIVED.get(id(map))
-    if hit is None or hit[0]() is not map:
-        return None
-    full = hit[1]()
-    if full is None:
-        return None
-    checked = checked_map(full, config)
-    keep = hit[2]
-    out = dataclasses.replace(
-        map, measurements=checked.measurements[keep], information=checked.information[keep]
-    )
-    return out, _CACHE[id(full)][3]
+    unchecked = ~check.matched
+    unchecked.flags.writeable = False
+    return out, unchecked

@@ -11,12 +11,10 @@ import dataclasses
 import logging
 import threading
 import time
-import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import partial
 from statistics import NormalDist
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,19 +26,19 @@ from hitl_slam.errors import CorrectionRejected, InputError, SolverError
 from hitl_slam.geometry import chain_steps
 from hitl_slam.map import Map, motion_model_information
 from hitl_slam.solve import robust_pairs
+from hitl_slam.workspace import Workspace
 
 __all__ = [
     "CorrectionResult",
     "apply_correction",
     "chain_variances",
     "correction_engine",
-    "engine_lock",
     "explicit_and_backpropagate",
+    "new_engine",
     "solve_all",
 ]
 
 FloatArray = NDArray[np.float64]
-_T = TypeVar("_T")
 
 logger = logging.getLogger(__name__)
 
@@ -88,7 +86,9 @@ class CorrectionResult:
         )
 
 
-def chain_variances(map: Map, poses: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
+def chain_variances(
+    map: Map, poses: FloatArray | None = None, *, workspace: Workspace | None = None
+) -> tuple[FloatArray, FloatArray]:
     """Rotational and isotropic translational variance of each chain edge k -> k+1 (N-1,),
     from the map's own edge information, or the motion model where the chain has no edge.
 
@@ -100,7 +100,7 @@ def chain_variances(map: Map, poses: FloatArray | None = None) -> tuple[FloatArr
     if poses is None:
         chain = _chain_of(map)
         return chain.rot.copy(), chain.trans.copy()
-    _, engine, lock = _engine_entry(map)
+    engine, lock = _workspace(map, workspace).engine(map)
     with lock:
         rot, trans = engine.chain_variances(np.ascontiguousarray(poses, dtype=np.float64))
     return rot, trans
@@ -108,7 +108,7 @@ def chain_variances(map: Map, poses: FloatArray | None = None) -> tuple[FloatArr
 
 @dataclass(frozen=True)
 class _Chain:
-    """What back-propagation needs of a map's chain, computed once per map object."""
+    """What back-propagation needs of a map's chain (held by its engine)."""
 
     rot: FloatArray  # (N-1,) rotational variance of each step k -> k+1
     trans: FloatArray  # (N-1,) isotropic translational variance
@@ -116,14 +116,7 @@ class _Chain:
     turns: FloatArray  # their edges' measured turns, in the k -> k+1 direction
 
 
-_CHAINS: dict[int, tuple[weakref.ref[Map], _Chain]] = {}
-
-
 def _chain_of(map: Map) -> _Chain:
-    key = id(map)
-    hit = _CHAINS.get(key)
-    if hit is not None and hit[0]() is map:
-        return hit[1]
     z = chain_steps(map.poses)
     cov = np.linalg.inv(motion_model_information(z, DEFAULT))
     e = map.edges
@@ -134,18 +127,12 @@ def _chain_of(map: Map) -> _Chain:
     turns = np.where(forward, 1.0, -1.0)[on_chain] * map.measurements[on_chain, 2]
     if steps.size:
         cov[steps] = np.linalg.inv(map.information[on_chain])
-    chain = _Chain(
+    return _Chain(
         rot=np.ascontiguousarray(cov[:, 2, 2]),
         trans=np.ascontiguousarray(0.5 * (cov[:, 0, 0] + cov[:, 1, 1])),
         steps=steps,
         turns=np.ascontiguousarray(turns),
     )
-    _CHAINS[key] = (weakref.ref(map, partial(_forget, _CHAINS, key)), chain)
-    return chain
-
-
-def _forget(cache: dict[int, _T], key: int, _ref: object) -> None:
-    cache.pop(key, None)
 
 
 def _observations(map: Map, rows: NDArray[np.int64]) -> tuple[NDArray[np.int64], FloatArray]:
@@ -153,43 +140,34 @@ def _observations(map: Map, rows: NDArray[np.int64]) -> tuple[NDArray[np.int64],
     return poses, np.ascontiguousarray(map.points[map.point_rows(rows)])
 
 
-def correction_engine(map: Map) -> _core.CorrectionEngine:
-    """The correction engine of ``map``: its relative-pose factors, held once per map object,
-    with the symbolic analyses of the structures it solved recently (undo, redo and the guards'
-    second solve of one drawing return to structures seen a moment ago). One call at a time:
-    use it under :func:`engine_lock` (the engine releases the GIL while it solves, and a second
-    thread entering it would get "Already borrowed")."""
-    return _engine_entry(map)[1]
+def new_engine(map: Map) -> _core.CorrectionEngine:
+    """A correction engine of ``map``: its relative-pose factors and chain, with the symbolic
+    analyses of the structures it solves (undo, redo and the guards' second solve of one drawing
+    return to structures seen a moment ago). Held by a :class:`~hitl_slam.workspace.Workspace`;
+    one call at a time (the engine releases the GIL while it solves, and a second thread
+    entering it would get "Already borrowed")."""
+    chain = _chain_of(map)
+    return _core.CorrectionEngine(
+        map.num_poses,
+        map.edges,
+        map.measurements,
+        map.information,
+        map.anchor,
+        chain=(chain.rot, chain.trans, chain.steps, chain.turns),
+    )
 
 
-def engine_lock(map: Map) -> threading.Lock:
-    """The lock that serializes calls into ``map``'s correction engine."""
-    return _engine_entry(map)[2]
+def correction_engine(
+    map: Map, workspace: Workspace | None = None
+) -> tuple[_core.CorrectionEngine, threading.Lock]:
+    """``map``'s correction engine in ``workspace`` (default: a workspace of ``map`` of its
+    own) and the lock to hold around every call into it."""
+    return _workspace(map, workspace).engine(map)
 
 
-_Entry = tuple[weakref.ref[Map], _core.CorrectionEngine, threading.Lock]
-_ENGINES: dict[int, _Entry] = {}
-_ENGINES_LOCK = threading.Lock()
-
-
-def _engine_entry(map: Map) -> _Entry:
-    key = id(map)
-    with _ENGINES_LOCK:
-        hit = _ENGINES.get(key)
-        if hit is not None and hit[0]() is map:
-            return hit
-        chain = _chain_of(map)
-        engine = _core.CorrectionEngine(
-            map.num_poses,
-            map.edges,
-            map.measurements,
-            map.information,
-            map.anchor,
-            chain=(chain.rot, chain.trans, chain.steps, chain.turns),
-        )
-        entry = (weakref.ref(map, partial(_forget, _ENGINES, key)), engine, threading.Lock())
-        _ENGINES[key] = entry
-        return entry
+def _workspace(map: Map, workspace: Workspace | None) -> Workspace:
+    """``workspace``, or one of ``map``'s own for a call that brings none."""
+    return workspace if workspace is not None else Workspace(map)
 
 
 def joint_kernels(config: Config = DEFAULT) -> list[tuple[str, str]]:
@@ -207,6 +185,8 @@ def solve_all(
     active: Sequence[Interpretation],
     config: Config = DEFAULT,
     start: FloatArray | None = None,
+    *,
+    workspace: Workspace | None = None,
 ) -> tuple[FloatArray, FloatArray, _core.SolveReport]:
     """Joint optimization (docs/ALGORITHM.md §4.3) of poses and the lines of every correction in
     ``active``, from ``start`` (default: the map's poses), over the map's ORIGINAL relative-pose
@@ -215,7 +195,7 @@ def solve_all(
     corrections = [
         (h.mode.value, *_observations(map, h.s_a), *_observations(map, h.s_b)) for h in active
     ]
-    _, engine, lock = _engine_entry(map)
+    engine, lock = _workspace(map, workspace).engine(map)
     with lock:
         return engine.solve(
             x0,
@@ -237,12 +217,12 @@ def solve_all(
 
 
 def explicit_and_backpropagate(
-    map: Map, poses: FloatArray, h: Interpretation
+    map: Map, poses: FloatArray, h: Interpretation, *, workspace: Workspace | None = None
 ) -> tuple[FloatArray, FloatArray]:
     """docs/ALGORITHM.md §4.1 then §4.2: the rigid move of every pose from ``min(X_b)`` on, and
     the chain from ``max(X_a)`` made to meet it (in the core). Returns (new poses, the
     transform)."""
-    _, engine, lock = _engine_entry(map)
+    engine, lock = _workspace(map, workspace).engine(map)
     with lock:
         moved, transform = engine.explicit_and_backpropagate(
             np.ascontiguousarray(poses, dtype=np.float64),
@@ -289,14 +269,13 @@ class _EngineCall:
 
 
 def _unchecked_alternative(
-    map: Map, call: _EngineCall, h: Interpretation, poses: FloatArray
+    map: Map, unchecked: NDArray[np.bool_], call: _EngineCall, h: Interpretation, poses: FloatArray
 ) -> tuple[Interpretation, FloatArray, FloatArray, FloatArray, _core.SolveReport] | None:
     """The correction solved again with ``config.unchecked_alternative`` on the odometry when
     the chain between its passes has steps the scans could not check (docs/ALGORITHM.md
     §I.12), if that map is the more consistent (§6); None to keep the first solve."""
     from hitl_slam.interpret import from_core
     from hitl_slam.metrics import inconsistency
-    from hitl_slam.odometry_check import unchecked_steps
 
     config = call.config
     spec = config.unchecked_alternative
@@ -306,7 +285,7 @@ def _unchecked_alternative(
         return None  # the person chose the odometry's kernel
     rows = np.concatenate([h.x_a, h.x_b])
     lo, hi = int(rows.min()), int(rows.max())
-    gaps = np.flatnonzero(unchecked_steps(map, config)[lo:hi]) + lo
+    gaps = np.flatnonzero(unchecked[lo:hi]) + lo
     if gaps.size == 0:
         return None
     alt_config = config.replace(robust=f"{config.robust},{spec}" if config.robust else spec)
@@ -336,6 +315,8 @@ def apply_correction(
     drawn: DrawnCorrection,
     active: Sequence[Interpretation] = (),
     config: Config = DEFAULT,
+    *,
+    workspace: Workspace | None = None,
 ) -> CorrectionResult:
     """Interpret ``drawn`` on the map as displayed (``poses``), correct, and re-solve with every
     correction in ``active`` plus the new one. Raises CorrectionRejected when the drawing
@@ -350,9 +331,12 @@ def apply_correction(
     collinear solution's chi2, the along-the-wall part contradicts them and the collinear
     solution is applied instead; where the chi2 cannot tell, the scans around the passes decide
     (``config.colocation_consistency``). Either way a note in the interpretation gives the
-    figures."""
-    from hitl_slam.interpret import checked_drawing, from_core, map_scans
-    from hitl_slam.odometry_check import checked_map
+    figures.
+
+    ``workspace``: what is kept about the map between corrections (its scans in the core, the
+    odometry check, the engine); a session passes its own, and a call without one makes one for
+    itself."""
+    from hitl_slam.interpret import checked_drawing, from_core
 
     t0 = time.perf_counter()
     current = np.ascontiguousarray(poses, dtype=np.float64)
@@ -363,11 +347,12 @@ def apply_correction(
     if not np.all(np.isfinite(current)):
         raise InputError("poses contain non-finite values; give finite poses")
     seg_a, seg_b, sigma_h = checked_drawing(drawn, config)
-    scans = map_scans(map)
+    held = _workspace(map, workspace)
+    scans = held.scans()
     # Where the error goes: the odometry, re-measured where its scans contradict it
-    # (docs/ALGORITHM.md §I.5); computed once per map.
-    checked = checked_map(map, config)
-    _, engine, lock = _engine_entry(checked)
+    # (docs/ALGORITHM.md §I.5); computed once per graph, and held, by the workspace.
+    checked, unchecked = held.checked(map, config)
+    engine, lock = held.engine(checked)
     z = NormalDist().inv_cdf(config.consistency_guard) if config.consistency_guard > 0 else 0.0
     active_rows = [
         (
@@ -392,7 +377,7 @@ def apply_correction(
     )
     t, new_poses, lines, transform, report, t_interpret, t_core = call.run(joint_kernels(config))
     h = from_core(t)
-    alternative = _unchecked_alternative(map, call, h, new_poses)
+    alternative = _unchecked_alternative(map, unchecked, call, h, new_poses)
     if alternative is not None:
         h, new_poses, lines, transform, report = alternative
     for note in h.notes:

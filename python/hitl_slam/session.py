@@ -16,6 +16,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, Protocol
 
 import numpy as np
@@ -33,9 +34,9 @@ from hitl_slam.loop_closures import (
     EDGES,
     LoopClosure,
     LoopClosureTable,
-    effective_map,
 )
 from hitl_slam.map import Map
+from hitl_slam.workspace import Workspace
 
 __all__ = [
     "MOVED_ANGLE_RAD",
@@ -98,10 +99,12 @@ with the ``active`` corrections plus the new one, without mutating any input; ra
 :class:`CorrectionRejected` when the drawing cannot be interpreted."""
 
 
-def _default_applier() -> Applier:
+def _default_applier(workspace: Workspace) -> Applier:
+    """:func:`hitl_slam.pipeline.apply_correction` with ``workspace`` (what is kept about the map
+    between corrections)."""
     from hitl_slam.pipeline import apply_correction
 
-    return apply_correction
+    return partial(apply_correction, workspace=workspace)
 
 
 class EntryStatus(enum.Enum):
@@ -370,13 +373,13 @@ class _State:
                 return step
         return None
 
-    def graph(self, map: Map) -> Map:
+    def graph(self, held: Workspace) -> Map:
         """The map every solve runs over now: the aligned map while an alignment is in effect,
-        otherwise ``map`` without the rejected loop closures."""
+        otherwise the workspace's map without the rejected loop closures."""
         aligned = self.alignment()
         if aligned is not None:
-            return aligned.map_of(map)
-        return effective_map(map, self.rejected())
+            return aligned.map_of(held.map)
+        return held.graph(self.rejected())
 
     @property
     def poses(self) -> NDArray[np.float64]:
@@ -745,7 +748,7 @@ def apply_in_order(
     Raises:
         CorrectionRejected: a correction cannot be interpreted (its index is in the message).
     """
-    apply = applier if applier is not None else _default_applier()
+    apply = applier if applier is not None else _default_applier(Workspace(map))
     poses = np.array(map.poses if start is None else start, dtype=np.float64, order="C")
     active: list[Interpretation] = []
     outcomes: list[CorrectionOutcome] = []
@@ -792,6 +795,9 @@ class Session:
         self._config = config
         self._state = state
         self._applier = applier
+        # What is computed once about the map and kept: its scans in the core, the graphs the
+        # corrections solve over, their odometry check and their engines.
+        self._workspace = Workspace(map)
         self._operation = threading.Lock()  # held for a whole operation, including the solve
         self._guard = threading.Lock()  # held briefly around every state change and read
         self._closed = False
@@ -936,7 +942,7 @@ class Session:
         session started from it starts where this one is."""
         with self._guard:
             poses = self._state.poses.copy()
-            target = self._state.graph(self._map)
+            target = self._state.graph(self._workspace)
         metadata = target.metadata
         if EDGES in metadata:
             metadata = dict(metadata)
@@ -949,7 +955,7 @@ class Session:
         the scans is in effect the aligned map (its graph instead of the map's factors); with
         the input poses."""
         with self._guard:
-            return self._state.graph(self._map)
+            return self._state.graph(self._workspace)
 
     def _solve_config(self) -> Config:
         """The configuration corrections solve with now (called with the guard held): the
@@ -1054,6 +1060,11 @@ class Session:
         world frame, metres) with ``mode``; see :meth:`apply`."""
         return self.apply(DrawnCorrection.make(a, b, mode, sigma_h))
 
+    def _correct_with(self, applier: Applier | None) -> Applier:
+        """``applier``, or the default one (:func:`hitl_slam.pipeline.apply_correction`) with
+        this session's workspace."""
+        return applier if applier is not None else _default_applier(self._workspace)
+
     def apply(self, drawn: DrawnCorrection) -> CorrectionOutcome:
         """Apply one correction on the map as it stands, dropping anything undone.
 
@@ -1066,14 +1077,14 @@ class Session:
         """
         with self._operation:
             self._check_open()
-            apply = self._applier if self._applier is not None else _default_applier()
+            apply = self._correct_with(self._applier)
             self._record(EventKind.REQUEST, {"correction": drawn.to_json()})
             with self._guard:
                 pending = self._state.pending
                 assert pending is not None
                 before = self._state.poses
                 active = self._state.active()
-                target = self._state.graph(self._map)
+                target = self._state.graph(self._workspace)
                 config = self._solve_config()
             seq = pending.seq
             try:
@@ -1150,9 +1161,11 @@ class Session:
                     "replaced the map's; undo the alignment to reject or reinstate the map's"
                 )
             wanted = current | {loop} if rejected else current - {loop}
-            target = effective_map(self._map, wanted)
+            target = self._workspace.graph(wanted)
             t0 = time.perf_counter()
-            poses, lines, report = solve_all(target, active, self._config, start=before)
+            poses, lines, report = solve_all(
+                target, active, self._config, start=before, workspace=self._workspace
+            )
             elapsed = time.perf_counter() - t0
             after = _checked_poses(poses, before.shape)
             count = 2 * len(active)
@@ -1330,7 +1343,7 @@ class Session:
         """
         from hitl_slam.pipeline import solve_all
 
-        apply = applier or self._applier or _default_applier()
+        apply = self._correct_with(applier or self._applier)
         with self._guard:
             steps = list(self._state.applied)
             loops = self._state.loops
@@ -1355,11 +1368,11 @@ class Session:
                     rejected.add(step.loop)
                 else:
                     rejected.discard(step.loop)
-            target = (
-                aligned if aligned is not None else effective_map(self._map, frozenset(rejected))
-            )
+            target = aligned if aligned is not None else self._workspace.graph(frozenset(rejected))
             if isinstance(step, _Toggle):
-                solved, _, report = solve_all(target, active, self._config, start=poses)
+                solved, _, report = solve_all(
+                    target, active, self._config, start=poses, workspace=self._workspace
+                )
                 poses = _checked_poses(solved, poses.shape)
                 outcomes.append(report)
                 continue

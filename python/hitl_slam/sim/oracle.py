@@ -34,6 +34,7 @@ from hitl_slam.sim.careful import CarefulPerson
 from hitl_slam.sim.human import Visit
 from hitl_slam.sim.odometry import DEFAULT_NOISE, HeadingDrift, HeadingJump, ScaleError, Slip
 from hitl_slam.sim.scenario import Scenario, fit_points
+from hitl_slam.workspace import Workspace
 
 __all__ = ["oracle_applier", "true_information"]
 
@@ -102,20 +103,25 @@ def oracle_applier(
     """An applier (see :data:`hitl_slam.session.Applier`) for ``person``'s drawings on
     ``scenario``, which knows what each drawing meant (see the module's docstring)."""
     info = true_information(scenario) if error_model else None
-    modelled: dict[int, tuple[Map, Map]] = {}
+    held: list[Workspace] = []  # the workspace of the session's map, made on the first call
+    modelled: list[tuple[Map, Map]] = []  # (graph, the graph with the true information)
+
+    def workspace(map: Map) -> Workspace:
+        if not held or not np.may_share_memory(held[0].map.points, map.points):
+            held[:] = [Workspace(map)]
+        return held[0]
 
     def graph(map: Map, config: Config) -> Map:
         if info is None:
-            from hitl_slam.odometry_check import checked_map
-
-            return checked_map(map, config)
-        hit = modelled.get(id(map))
-        if hit is None or hit[0] is not map:
-            if map.edges.shape != scenario.map.edges.shape:
-                raise CorrectionRejected("the oracle's error model is for the map's own edges")
-            hit = (map, dataclasses.replace(map, information=np.ascontiguousarray(info)))
-            modelled[id(map)] = hit
-        return hit[1]
+            return workspace(map).checked(map, config)[0]
+        for seen, out in modelled:
+            if seen is map:
+                return out
+        if map.edges.shape != scenario.map.edges.shape:
+            raise CorrectionRejected("the oracle's error model is for the map's own edges")
+        out = dataclasses.replace(map, information=np.ascontiguousarray(info))
+        modelled[:] = [*modelled[-3:], (map, out)]
+        return out
 
     def apply(
         map: Map,
@@ -144,8 +150,9 @@ def oracle_applier(
         )
         g = graph(map, config)
         t1 = time.perf_counter()
-        moved, transform = explicit_and_backpropagate(g, current, h)
-        new, lines, report = solve_all(g, [*active, h], config, start=moved)
+        ws = workspace(map)
+        moved, transform = explicit_and_backpropagate(g, current, h, workspace=ws)
+        new, lines, report = solve_all(g, [*active, h], config, start=moved, workspace=ws)
         t2 = time.perf_counter()
         return CorrectionResult.solved(
             new, h, lines, transform, report, (t2 - t0, t1 - t0, t2 - t1)

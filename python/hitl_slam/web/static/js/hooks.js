@@ -69,6 +69,9 @@ export function installHooks(app) {
     get busy() {
       return app.busy;
     },
+    get queued() {
+      return app.queue.map((q) => q.what);
+    },
     get preview() {
       return app.preview;
     },

@@ -34,6 +34,7 @@ class App {
     this.previewSeq = 0;
     this.highlights = { a: 0, b: 0 };
     this.busy = false; // a command (apply, undo, redo, step, loop closure, align, save) in flight
+    this.queue = []; // commands asked for while one was in flight, to run in order after it
     this.loading = null; // the running map fetch (one at a time)
     this.wanted = -1; // newest state version whose map should be fetched
     this.measure = null; // {t0, t1, solveMs, version} of the apply awaiting its first frame
@@ -493,7 +494,6 @@ class App {
       this.ui.show(`rejected: ${this.preview.reason} (draw again)`, "rejected");
       return;
     }
-    if (this.busy) return;
     const drawn = this.pending.toDrawn();
     await this.command(async () => {
       const t0 = performance.now();
@@ -509,21 +509,21 @@ class App {
       const last = r.state.last;
       this.ui.show(`applied ${drawn.mode} in ${r.solve_ms.toFixed(0)} ms (${last ? last.iterations : "?"} iterations)`, "ok");
       this.setState(r.state);
-    });
+    }, "correction");
   }
 
   undo() {
     return this.command(async () => {
       this.setState(await api.undo());
       this.ui.show("undone", "info");
-    });
+    }, "undo");
   }
 
   redo() {
     return this.command(async () => {
       this.setState(await api.redo());
       this.ui.show("redone", "info");
-    });
+    }, "redo");
   }
 
   /**
@@ -534,7 +534,8 @@ class App {
    */
   align() {
     return this.command(async () => {
-      this.ui.show("aligning the map with its scans\u2026 (up to a minute on a big map)", "busy");
+      this.busyText = "aligning the map with its scans\u2026 (up to a minute on a big map)";
+      this.ui.show(this.busyText, "busy");
       let s;
       try {
         s = await api.align();
@@ -577,17 +578,27 @@ class App {
     return this.command(async () => {
       const r = await api.save();
       this.ui.show(`saved ${r.files.join(", ")}`, "ok");
-    });
+    }, "save");
   }
 
-  /** Runs one server command (named `what`) at a time; its errors go to #message. */
+  /**
+   * Runs one server command (named `what`) at a time; its errors go to #message. A command asked
+   * for while another is in flight (a key pressed during a long correction) is not dropped: it
+   * waits in the queue, says so, and runs when the one before it ends, in the order asked.
+   */
   async command(f, what = "command") {
     if (this.busy) {
-      // While aligning, the banner already says what runs (and must not fade).
-      if (this.ui.message.kind !== "busy") this.ui.show("busy: the previous command is still running", "info");
+      this.queue.push({ f, what });
+      const waiting = this.queue.map((q) => q.what).join(", then ");
+      const running = this.running === "align" ? "the alignment" : `the ${this.running}`;
+      const text = `queued: ${waiting} (after ${running})`;
+      // While aligning, the banner says what runs (and must not fade): the queue joins it.
+      if (this.ui.message.kind === "busy") this.ui.show(`${this.busyText} — ${text}`, "busy");
+      else this.ui.show(text, "busy");
       return;
     }
     this.busy = true;
+    this.running = what;
     this.ui.setBusy(what);
     try {
       await f();
@@ -595,8 +606,11 @@ class App {
       this.error(e);
     } finally {
       this.busy = false;
+      this.running = null;
       this.ui.setBusy(null);
     }
+    const next = this.queue.shift();
+    if (next) await this.command(next.f, next.what);
   }
 
   error(e) {
