@@ -115,3 +115,37 @@ def test_a_damaged_stored_check_is_refused_with_the_map_named() -> None:
     metadata[STORED_TURNS] = np.zeros((np.size(metadata[STORED_STEPS]) + 1, 2))
     with pytest.raises(InputError, match="stored odometry check is malformed"):
         stored_check(dataclasses.replace(m, metadata=metadata))
+
+
+def test_prepared_the_first_correction_makes_nothing_of_its_own(
+    monkeypatch: pytest.MonkeyPatch, matches: list[int]
+) -> None:
+    """Session.prepare (serve calls it as the page opens) makes the scans in the core, the
+    odometry check and the engine in the background: the first correction then builds none."""
+    from hitl_slam import pipeline
+
+    made: list[str] = []
+    real_scans, real_engine = _core.MapScans, pipeline.new_engine
+
+    def scans(*args: Any) -> Any:
+        made.append("scans")
+        return real_scans(*args)
+
+    def engine(m: Any) -> Any:
+        made.append("engine")
+        return real_engine(m)
+
+    monkeypatch.setattr(_core, "MapScans", scans)
+    monkeypatch.setattr(pipeline, "new_engine", engine)
+    scenario = _jumped(8)
+    with Session.new(scenario.map) as session:
+        thread = session.prepare()
+        assert thread is not None
+        thread.join(60)
+        assert sorted(made) == ["engine", "scans"]
+        drawn = SimulatedHuman(scenario, 8).next_correction(np.array(session.poses))
+        assert drawn is not None
+        before, checked = len(made), len(matches)  # (the simulated person reads the scans too)
+        session.apply(drawn)
+        assert len(made) == before  # nothing new for the correction
+        assert len(matches) == checked

@@ -2,7 +2,7 @@
 segment and the observations on it, then the pair rules (pose threshold, one visit per segment,
 no shared poses, time order) turn them into ``h = <P_a, P_b, S_a, S_b, X_a, X_b, m>``. Both run
 in the Rust core (``correction/interpretation.rs``) in one call; this module checks the inputs
-and holds each map's scans there once (:func:`map_scans`).
+and puts a map's scans there (:func:`map_scans`; a session's workspace keeps them).
 """
 
 from __future__ import annotations

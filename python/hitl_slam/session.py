@@ -1060,6 +1060,28 @@ class Session:
         world frame, metres) with ``mode``; see :meth:`apply`."""
         return self.apply(DrawnCorrection.make(a, b, mode, sigma_h))
 
+    def prepare(self) -> threading.Thread | None:
+        """Starts making, in a background thread, what the first correction would wait for
+        (the scans in the core, the odometry check of the graph solved now, its engine:
+        :meth:`hitl_slam.workspace.Workspace.prepare`), so that it costs what a later one
+        does; ``serve`` calls it as the page opens. Returns the thread (None with a custom
+        applier, which does not use them). A failure there is left to the first correction,
+        which meets it again and reports it."""
+        if self._applier is not None:
+            return None
+        with self._guard:
+            graph = self._state.graph(self._workspace)
+            config = self._solve_config()
+        held = self._workspace
+
+        def run() -> None:
+            with contextlib.suppress(Exception):
+                held.prepare(graph, config)
+
+        thread = threading.Thread(target=run, name="hitl-slam prepare", daemon=True)
+        thread.start()
+        return thread
+
     def _correct_with(self, applier: Applier | None) -> Applier:
         """``applier``, or the default one (:func:`hitl_slam.pipeline.apply_correction`) with
         this session's workspace."""

@@ -155,6 +155,14 @@ class Workspace:
                 entry.engine = new_engine(graph)
             return entry.engine, entry.lock
 
+    def prepare(self, graph: Map, config: Config = DEFAULT) -> None:
+        """Makes now what the first correction on ``graph`` would otherwise wait for: the scans
+        in the core, the graph's odometry check and the checked graph's engine (e.g. in a
+        thread while a person looks at the map before drawing)."""
+        self.scans()
+        checked, _ = self.checked(graph, config)
+        self.engine(checked)
+
     def engines(self) -> list[_core.CorrectionEngine]:
         """Every engine made so far (e.g. to clear their cached analyses in a benchmark)."""
         with self._lock:

@@ -429,6 +429,8 @@ def run_server(
         except BaseException:
             session.close()
             raise
+        # What the first correction needs, made while the page opens and the person looks.
+        session.prepare()
         try:
             app = create_app(session_host, token=secret, max_body=max_body, bind=host)
             announce(f"hitl-slam serve: {how}")
