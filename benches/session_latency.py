@@ -3,8 +3,10 @@
 log (13,631 scans) through the front end (`hitl_slam.slam.slam`), the map bent by heading
 faults the front end did not see, a session started on it (a `.hitl` file), then drawings as a
 person makes them at revisits of a wall (benches/revisits.py), timed as `Session.apply` (the
-journal's writes included); the session closed and reopened, and one more drawing timed. One
-core (RAYON_NUM_THREADS=1, set here unless given). Meant to run as
+journal's writes included); the session closed and reopened, and one more drawing timed; then
+both again as `serve` has them, after `Session.prepare` (the scans in the core, the odometry
+check and the engine made in the background as the page opens). One core (RAYON_NUM_THREADS=1,
+set here unless given). Meant to run as
 
     python benches/session_latency.py --write benches/README.md
 
@@ -29,6 +31,7 @@ import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -59,6 +62,11 @@ def bent(m: Map) -> Map:
     measurements = m.measurements.copy()
     measurements[chain] = steps[e[chain, 0]]
     return dataclasses.replace(m, poses=poses, measurements=measurements)
+
+
+def _joined(thread: Any) -> None:
+    if thread is not None:
+        thread.join()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -101,39 +109,58 @@ def main(argv: Sequence[str] | None = None) -> int:
             return True
         return False
 
+    timings: dict[str, float] = {}
+
+    def timed(what: str, f: Callable[[], Any]) -> Any:
+        t = time.perf_counter()
+        out = f()
+        timings[what] = time.perf_counter() - t
+        return out
+
     with tempfile.TemporaryDirectory(prefix="session-latency-") as tmp:
         path = Path(tmp) / "intel.hitl"
-        t = time.perf_counter()
-        session = Session.new(m, path)
-        created = time.perf_counter() - t
-        with session:
+        with timed("new", lambda: Session.new(m, path)) as session:
             correct(session, "first after slam")
             for _ in range(args.later):
                 correct(session, "later")
-        t = time.perf_counter()
-        reopened = Session.open(path)
-        opened = time.perf_counter() - t
-        with reopened:
+        with timed("open", lambda: Session.open(path)) as reopened:
             correct(reopened, "first after reopening")
+        # As `serve` does: Session.prepare in the background while the page opens.
+        with Session.new(m, Path(tmp) / "served.hitl") as served:
+            timed("prepare", lambda: _joined(served.prepare()))
+            correct(served, "first after slam, prepared")
+        with Session.open(path) as served:
+            timed("prepare again", lambda: _joined(served.prepare()))
+            correct(served, "first after reopening, prepared")
     later = [r[1] for r in rows if r[0] == "later"]
     firsts = {r[0]: r for r in rows if r[0] != "later"}
+
+    def row(what: str, label: str) -> list[str]:
+        if what not in firsts:
+            return []
+        _, took, note = firsts[what]
+        return [f"| {label} | {1e3 * took:.0f} | {note} |"]
+
     table = [
         "| step | ms | notes |",
         "|---|---|---|",
-        f"| Session.new (the map written, its odometry checked) | {1e3 * created:.0f} | |",
+        f"| Session.new (the map written, its odometry checked) | {1e3 * timings['new']:.0f} | |",
+        *row("first after slam", "first correction after slam"),
     ]
-    if "first after slam" in firsts:
-        _, took, note = firsts["first after slam"]
-        table.append(f"| first correction after slam | {1e3 * took:.0f} | {note} |")
     if later:
         table.append(
             f"| later corrections, median of {len(later)} | {1e3 * statistics.median(later):.0f} "
             f"| {min(later) * 1e3:.0f} - {max(later) * 1e3:.0f} ms |"
         )
-    table.append(f"| Session.open | {1e3 * opened:.0f} | |")
-    if "first after reopening" in firsts:
-        _, took, note = firsts["first after reopening"]
-        table.append(f"| first correction after reopening | {1e3 * took:.0f} | {note} |")
+    table += [
+        f"| Session.open | {1e3 * timings['open']:.0f} | |",
+        *row("first after reopening", "first correction after reopening"),
+        f"| Session.prepare (serve: in the background as the page opens) | "
+        f"{1e3 * timings['prepare']:.0f} | |",
+        *row("first after slam, prepared", "first correction after slam, prepared"),
+        f"| Session.prepare after reopening | {1e3 * timings['prepare again']:.0f} | |",
+        *row("first after reopening, prepared", "first correction after reopening, prepared"),
+    ]
     body = "\n".join(
         [
             *shared.provenance(),
