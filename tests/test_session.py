@@ -639,6 +639,7 @@ def test_a_session_saved_with_a_removed_option_opens_if_it_was_off(tmp_path: Pat
         "colocation_even_centroids": False,
         "colocation_length_rule": False,
         "align_max_contradicted_local": 1.0,
+        "odometry_fuse": 0.0,
     }
 
     def store(data: dict[str, Any]) -> None:
