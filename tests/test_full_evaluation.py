@@ -154,7 +154,35 @@ def test_cli_full_writes_the_report_and_says_whether_targets_are_met(tmp_path) -
     text = (tmp_path / "full.md").read_text()
     assert "| Orebro | bend | 5 |" in text
     assert "| Orebro | bend | 15 |" in text
+    assert "| guard | accepted, changed by it | refused by it |" in text
     assert main(["evaluate", "--full", "--faults", "quake", "-o", str(tmp_path)]) == 2
+
+
+def test_a_guard_is_named_by_the_note_it_leaves() -> None:
+    """The notes and refusals the core writes (rust/src/correction/apply.rs, and the pipeline's
+    robust-odometry note) name the guard that acted; other notes name none."""
+    from hitl_slam.full_evaluation import _guards
+
+    assert _guards(
+        [
+            "applied as collinear: the two passes' positions along the wall contradict the "
+            "odometry (chi2 of the map's measurements 12.0 as colocation, 3.0 as collinear)"
+        ]
+    ) == ("colocation guard (chi2, §I.3)",)
+    assert _guards(
+        [
+            "applied as collinear: the map is more consistent with the two passes on one line "
+            "than at one place (10.0 -> 9.0 m^2)",
+            "3 chain steps between the passes (first 12) could not be checked by the scans; ...",
+        ]
+    ) == (
+        "colocation consistency (scans, §I.13)",
+        "unchecked steps: robust odometry solve kept (§I.12)",
+    )
+    assert _guards(["segment a covers 2 visits; kept poses 3-9 (40 points), dropped 20-30"]) == ()
+    assert _guards(["applying it would contradict the robot's own measurements: ..."]) == (
+        "consistency guard: refused (§I.6)",
+    )
 
 
 def test_unknown_fault_model_is_an_input_error() -> None:

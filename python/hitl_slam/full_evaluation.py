@@ -69,6 +69,22 @@ NOISE_FLOOR = (0.02, 0.2)
 noise and the pseudo ground truth resolve; reported beside the strict 5% count, not instead."""
 
 
+GUARDS = {
+    "colocation guard (chi2, §I.3)": "positions along the wall contradict the odometry",
+    "colocation consistency (scans, §I.13)": "more consistent with the two passes on one line",
+    "consistency guard: passes nearest the drawings (§I.6)": "the passes kept first",
+    "consistency guard: refused (§I.6)": "would contradict the robot's own measurements",
+    "unchecked steps: robust odometry solve kept (§I.12)": "could not be checked by the scans",
+    "near tie: read on the next line (§I.18)": "read on the next line",
+}
+"""Each guard that can change or refuse a correction, and the words of the note (or refusal) it
+leaves when it does: a correction's notes say which guards acted on it."""
+
+
+def _guards(texts: Sequence[str]) -> tuple[str, ...]:
+    return tuple(name for name, words in GUARDS.items() if any(words in t for t in texts))
+
+
 @dataclass(frozen=True)
 class Drawing:
     """One drawing of the careful person and what it did to the map."""
@@ -81,6 +97,7 @@ class Drawing:
     inconsistency: tuple[float, float]  # before, after [m^2]
     time_s: float
     meant: bool | None = None  # accepted: each segment selected poses of the pass it was drawn on
+    guards: tuple[str, ...] = ()  # the guards that changed it (:data:`GUARDS`, by their notes)
 
     @property
     def worse(self) -> bool:
@@ -293,6 +310,7 @@ def evaluate_run(
                         (ang0, ang0),
                         (inc0.total_m2, inc0.total_m2),  # type: ignore[attr-defined]
                         time.perf_counter() - t0,
+                        guards=_guards([str(err)]),
                     )
                 )
                 continue
@@ -310,6 +328,7 @@ def evaluate_run(
                     (inc0.total_m2, inc1.total_m2),  # type: ignore[attr-defined]
                     spent,
                     meant,
+                    _guards(session.active[-1].notes),
                 )
             )
             ate0, ang0, inc0 = ate1, ang1, inc1
@@ -399,6 +418,27 @@ def run_full(
             runs.append(r)
             log(r)
     return runs
+
+
+def _guard_table(runs: Sequence[Run]) -> list[str]:
+    """How often each guard changed or refused a drawing, over every run (by the notes it left);
+    and how many accepted colocations paid for the colocation guard's second solve."""
+    drawings = [d for r in runs for d in r.drawings]
+    colocations = sum(d.accepted and d.mode == "colocation" for d in drawings)
+    lines = [
+        "How often each guard acted: changed an accepted correction (its note says so) or "
+        f"refused a drawing. Every accepted colocation ({colocations} of "
+        f"{sum(d.accepted for d in drawings)}) was also solved as collinear for the colocation "
+        "guard, whether or not it changed anything.",
+        "",
+        "| guard | accepted, changed by it | refused by it |",
+        "|---|---|---|",
+    ]
+    for name in GUARDS:
+        changed = sum(d.accepted and name in d.guards for d in drawings)
+        refused = sum(not d.accepted and name in d.guards for d in drawings)
+        lines.append(f"| {name} | {changed} | {refused} |")
+    return lines
 
 
 def summary(runs: Sequence[Run]) -> dict[str, float]:
@@ -558,6 +598,8 @@ def full_report(runs: Sequence[Run], provenance: str) -> str:
         "segment, poses of the pass it was drawn on (the others selected a different pass of",
         f"the same wall); {s['worse_beyond_noise_meant']:.0f} of the "
         f"{s['worse_beyond_noise']:.0f} worse beyond the noise did.",
+        "",
+        *_guard_table(runs),
         "",
         "## Runs",
         "",
