@@ -160,7 +160,8 @@ def test_cli_full_writes_the_report_and_says_whether_targets_are_met(tmp_path) -
 
 def test_a_guard_is_named_by_the_note_it_leaves() -> None:
     """The notes and refusals the core writes (rust/src/correction/apply.rs, and the pipeline's
-    robust-odometry note) name the guard that acted; other notes name none."""
+    robust-odometry note) name the guard that acted, by its section of docs/ALGORITHM.md; other
+    notes name none."""
     from hitl_slam.full_evaluation import _guards
 
     assert _guards(
