@@ -62,7 +62,8 @@ pub struct SlamParams {
     /// Where ICP cannot refine the search's pose, the pose is kept only with this score.
     pub unrefined_score: f64,
     /// A match is ambiguous when a pose outside `distinct` of the best scores at least
-    /// `ambiguity` times the best: the step then keeps the odometry.
+    /// `ambiguity` times the best: the step is counted as ambiguous and keeps the best match
+    /// (docs/ALGORITHM.md §F.1).
     pub ambiguity: f64,
     pub distinct: Window,
     /// Scans that could not be matched do not become keyframes until the odometry moved this

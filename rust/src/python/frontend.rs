@@ -78,7 +78,7 @@ fn match_consecutive<'py>(
 /// `(P, 2)` by scan (`offsets` `(N + 1,)`) and the odometry `(N, 3)`. `progress(done)` (a
 /// callable, optional) is called every 500 scans. The GIL is released except for those calls.
 /// Returns a dict: `poses` `(N, 3)`, `steps` `(N,)` uint8 (0 ICP from the prediction, 1 the
-/// correlative search, 2 ambiguous, 3 failed: the last two keep the odometry), `keyframes`
+/// correlative search, 2 ambiguous, 3 failed: the odometry kept), `keyframes`
 /// `(K,)` scan indices, `step_information` `(N, 3, 3)`, loop closures `loop_pairs` `(L, 2)`
 /// scan indices with `loop_measurements` `(L, 3)`, `loop_information` `(L, 3, 3)`,
 /// `loop_scores`, `loop_weights` (the final robust weight; 0 when set aside) and
