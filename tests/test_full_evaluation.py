@@ -197,7 +197,7 @@ def test_unknown_fault_model_is_an_input_error() -> None:
 
 @pytest.mark.parametrize("seed", [1, 6])
 def test_a_person_drawing_past_the_ends_and_beside_the_wall_is_still_understood(seed: int) -> None:
-    """Another drawing style (benches/drawing_styles.py): strokes run on past the ends of the
+    """Another drawing style (sim.careful.DrawingStyle): strokes run on past the ends of the
     copy by up to 0.4 m and drawn up to 0.2 m beside it, with 10 cm endpoint noise. On a
     generated world the person's drawings are still interpreted and make the map better."""
     style = DrawingStyle(overshoot=0.4, side=0.2)

@@ -31,13 +31,18 @@ What is here, by task:
 - maps with observations: :func:`load_map`, :class:`Map`, :func:`export`.
 - corrections: :class:`Correction` (two drawn segments and a :class:`Mode`; also known as
   :class:`DrawnCorrection`), :class:`Session` (:meth:`Session.new`, :meth:`Session.open`;
-  :class:`HistoryEntry`, :class:`EntryStatus`), :class:`Config`; the steps a session runs:
+  :class:`HistoryEntry`, :class:`EntryStatus`; what :meth:`Session.undo` and :meth:`Session.redo`
+  return: a :class:`HistoryEntry`, a :class:`LoopClosureStep` or an :class:`AlignStep`),
+  :class:`Config`; the steps a session runs:
   :func:`interpret` (what a drawing selects, an :class:`Interpretation`) and
   :func:`apply_correction` (one correction end to end, a :class:`CorrectionResult`); JSON Lines
   corrections files: :func:`read_corrections`, :func:`write_corrections`.
 - scores: :func:`inconsistency` (:class:`Inconsistency`), :func:`ate`.
-- errors: :class:`HitlSlamError` and its subclasses :class:`InputError`, :class:`SolverError`,
-  :class:`CorrectionRejected`, :class:`MissingExtra`.
+- errors (all in :mod:`hitl_slam.errors`): :class:`HitlSlamError` and its subclasses
+  :class:`InputError` (bad input; also :class:`MissingExtra`, :class:`OutputError` for a file
+  that could not be written, :class:`DamagedSession`, :class:`StepRefused` for an undo or redo
+  with nothing to undo, :class:`AlignmentRefused`), :class:`SolverError` and
+  :class:`CorrectionRejected`.
 """
 
 from __future__ import annotations
@@ -49,11 +54,15 @@ from hitl_slam.config import Config
 from hitl_slam.corrections import Correction, DrawnCorrection, Interpretation, Mode
 from hitl_slam.corrections_file import read_corrections, write_corrections
 from hitl_slam.errors import (
+    AlignmentRefused,
     CorrectionRejected,
+    DamagedSession,
     HitlSlamError,
     InputError,
     MissingExtra,
+    OutputError,
     SolverError,
+    StepRefused,
 )
 from hitl_slam.graph import PoseGraph
 from hitl_slam.interpret import interpret
@@ -63,16 +72,19 @@ from hitl_slam.io.maps import load_map
 from hitl_slam.map import Map
 from hitl_slam.metrics import Inconsistency, ate, inconsistency
 from hitl_slam.pipeline import CorrectionResult, apply_correction
-from hitl_slam.session import EntryStatus, HistoryEntry, Session
+from hitl_slam.session import AlignStep, EntryStatus, HistoryEntry, LoopClosureStep, Session
 from hitl_slam.solve import Init, Method, chi2, downweighted, marginals, optimize
 
 logging.getLogger("hitl_slam").addHandler(logging.NullHandler())
 
 __all__ = [
+    "AlignStep",
+    "AlignmentRefused",
     "Config",
     "Correction",
     "CorrectionRejected",
     "CorrectionResult",
+    "DamagedSession",
     "DrawnCorrection",
     "EntryStatus",
     "HistoryEntry",
@@ -83,14 +95,17 @@ __all__ = [
     "Interpretation",
     "IterationRecord",
     "LoadReport",
+    "LoopClosureStep",
     "Map",
     "Method",
     "MissingExtra",
     "Mode",
+    "OutputError",
     "PoseGraph",
     "Session",
     "SolveReport",
     "SolverError",
+    "StepRefused",
     "__version__",
     "apply_correction",
     "ate",

@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 from hitl_slam._core import SolveReport
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import Interpretation, Mode
-from hitl_slam.errors import InputError, SolverError
+from hitl_slam.errors import AlignmentRefused, InputError, SolverError
 from hitl_slam.map import InformationSource, Map
 
 __all__ = [
@@ -77,10 +77,6 @@ collinear statement, anywhere for a colocation)."""
 
 _MIN_POINTS_PER_SCAN = 20
 """Fewer laser points per scan on average than this and there is nothing to match."""
-
-
-class AlignmentRefused(InputError):
-    """The alignment contradicts the robot's odometry too often to be trusted: nothing changed."""
 
 
 @dataclass(frozen=True, eq=False)

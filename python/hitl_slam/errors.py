@@ -6,7 +6,17 @@ one family whatever layer the problem was found in.
 
 from __future__ import annotations
 
-__all__ = ["CorrectionRejected", "HitlSlamError", "InputError", "MissingExtra", "SolverError"]
+__all__ = [
+    "AlignmentRefused",
+    "CorrectionRejected",
+    "DamagedSession",
+    "HitlSlamError",
+    "InputError",
+    "MissingExtra",
+    "OutputError",
+    "SolverError",
+    "StepRefused",
+]
 
 
 class HitlSlamError(Exception):
@@ -32,3 +42,50 @@ class SolverError(HitlSlamError, RuntimeError):
 
 class CorrectionRejected(HitlSlamError):
     """A human correction that cannot be interpreted; nothing was changed."""
+
+
+class StepRefused(InputError):
+    """An undo or redo with nothing to undo or redo: refused, nothing changed."""
+
+
+class AlignmentRefused(InputError):
+    """The alignment contradicts the robot's odometry too often to be trusted: nothing changed."""
+
+
+class OutputError(InputError, OSError):
+    """An output file could not be written: the message names the file, says why (the
+    operating system's reason) and what to do. Nothing was left under the file's name.
+    ``errno``, ``strerror`` and ``filename`` are those of the operating system's error."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
+class DamagedSession(InputError):
+    """A session file whose content is damaged: changed bytes (a checksum mismatch), a torn or
+    truncated file, a non-finite or malformed value.
+
+    Attributes:
+        path: the file.
+        what: what is wrong, in a few words.
+        first_bad_seq: the first event that cannot be used; events before it are intact. ``None``
+            when the map or the configuration itself is damaged (no event can be used) or the
+            damage could not be placed.
+    """
+
+    def __init__(
+        self,
+        path: str,
+        what: str,
+        first_bad_seq: int | None = None,
+        *,
+        message: str | None = None,
+    ) -> None:
+        self.path = path
+        self.what = what
+        self.first_bad_seq = first_bad_seq
+        super().__init__(
+            message
+            or f"{path}: the session file is damaged ({what}); "
+            "restore it from a copy, or start a new session from the input map"
+        )

@@ -252,12 +252,11 @@ def evaluate_run(
     noise ``noise_m`` repair it, scoring every drawing. With ``align``, once they have drawn
     what they could (or ``max_corrections``), they align the map with its scans
     (:meth:`Session.align`), which is scored too. ``on_end(scenario, session)`` is called
-    with the damaged scenario and the session at its last state, before the session closes
-    (benches/scan_alignment.py starts from there). ``applier(scenario, person)``, if given,
-    makes what computes each correction instead of :func:`hitl_slam.pipeline.apply_correction`
-    (benches/harm_oracle.py: one that knows the truth). ``person_style``: how the person's
-    strokes depart from what they see (:class:`~hitl_slam.sim.careful.DrawingStyle`,
-    benches/drawing_styles.py; default: they do not)."""
+    with the damaged scenario and the session at its last state, before the session closes.
+    ``applier(scenario, person)``, if given, makes what computes each correction instead of
+    :func:`hitl_slam.pipeline.apply_correction` (:func:`hitl_slam.sim.oracle.oracle_applier`:
+    one that knows the truth). ``person_style``: how the person's strokes depart from what they
+    see (:class:`~hitl_slam.sim.careful.DrawingStyle`; default: they do not)."""
     from hitl_slam.metrics import ate, inconsistency
     from hitl_slam.session import Session
     from hitl_slam.sim.careful import CarefulPerson, DrawingStyle

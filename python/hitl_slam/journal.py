@@ -82,7 +82,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.errors import InputError
+from hitl_slam.errors import DamagedSession, InputError
 from hitl_slam.io.atomic import fsync_directory, sweep_once
 from hitl_slam.map import Map
 
@@ -178,36 +178,6 @@ class Event:
     kind: EventKind
     payload: dict[str, Any]
     poses: NDArray[np.float64] | None = None
-
-
-class DamagedSession(InputError):
-    """A session file whose content is damaged: changed bytes (a checksum mismatch), a torn or
-    truncated file, a non-finite or malformed value.
-
-    Attributes:
-        path: the file.
-        what: what is wrong, in a few words.
-        first_bad_seq: the first event that cannot be used; events before it are intact. ``None``
-            when the map or the configuration itself is damaged (no event can be used) or the
-            damage could not be placed.
-    """
-
-    def __init__(
-        self,
-        path: str,
-        what: str,
-        first_bad_seq: int | None = None,
-        *,
-        message: str | None = None,
-    ) -> None:
-        self.path = path
-        self.what = what
-        self.first_bad_seq = first_bad_seq
-        super().__init__(
-            message
-            or f"{path}: the session file is damaged ({what}); "
-            "restore it from a copy, or start a new session from the input map"
-        )
 
 
 def encode_array(array: NDArray[Any]) -> bytes:

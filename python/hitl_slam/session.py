@@ -25,10 +25,16 @@ from numpy.typing import NDArray
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.corrections_file import Apply, Step, Undo
-from hitl_slam.errors import CorrectionRejected, InputError, SolverError
+from hitl_slam.errors import (
+    CorrectionRejected,
+    DamagedSession,
+    InputError,
+    SolverError,
+    StepRefused,
+)
 from hitl_slam.geometry import fit_line
 from hitl_slam.io.atomic import atomic_outputs
-from hitl_slam.journal import DamagedSession, Event, EventKind, Journal
+from hitl_slam.journal import Event, EventKind, Journal
 from hitl_slam.loop_closures import (
     AUTO_REJECTED,
     EDGES,
@@ -62,10 +68,6 @@ MOVED_ANGLE_RAD = 1e-3
 """... or its heading by more than this [rad]."""
 
 _DIED = "the program ended before the correction finished"
-
-
-class StepRefused(InputError):
-    """An undo or redo with nothing to undo or redo: refused, nothing changed."""
 
 
 class CorrectionOutcome(Protocol):

@@ -33,7 +33,7 @@ import time
 from collections.abc import Callable, Iterator
 from typing import IO, Any, BinaryIO, TextIO
 
-from hitl_slam.errors import InputError
+from hitl_slam.errors import InputError, OutputError
 
 __all__ = [
     "TEMP_PATTERN",
@@ -84,15 +84,6 @@ def _process_start() -> float:
 
 
 PROCESS_START = _process_start()
-
-
-class OutputError(InputError, OSError):
-    """An output file could not be written: the message names the file, says why (the
-    operating system's reason) and what to do. Nothing was left under the file's name.
-    ``errno``, ``strerror`` and ``filename`` are those of the operating system's error."""
-
-    def __str__(self) -> str:
-        return str(self.args[0]) if self.args else ""
 
 
 @dataclasses.dataclass

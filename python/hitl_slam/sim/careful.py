@@ -13,7 +13,7 @@ pair.
 Other drawing styles (:class:`DrawingStyle`; off by default): a hand that runs each stroke on
 past the ends of what it saw by up to ``overshoot`` metres (uniform, each end on its own), and
 one that draws the whole stroke beside the wall, both ends shifted by one offset of up to
-``side`` metres to either side (benches/drawing_styles.py; docs/ALGORITHM.md §I.16).
+``side`` metres to either side (docs/ALGORITHM.md §I.16).
 """
 
 from __future__ import annotations
