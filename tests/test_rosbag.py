@@ -721,7 +721,7 @@ def test_a_missing_ros_extra_is_one_line(tmp_path: Path) -> None:
     assert result.returncode == 2
     assert result.stderr == (
         f"hitl-slam: error: {path}: reading a ROS bag needs the ros extra: "
-        "pip install 'hitl-slam[ros]'\n"
+        "pip install 'rosbags>=0.11' (or, in a clone of hitl-slam: pip install '.[ros]')\n"
     )
     assert result.stdout == ""
 

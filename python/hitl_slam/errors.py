@@ -32,7 +32,7 @@ class InputError(HitlSlamError, ValueError):
 
 class MissingExtra(InputError, ImportError):
     """An optional dependency is not installed: the message names the extra to install, e.g.
-    ``hitl-slam serve needs the web extra: pip install 'hitl-slam[web]'`` (see
+    ``hitl-slam serve needs the web extra: pip install 'fastapi>=0.110' ...`` (see
     :mod:`hitl_slam.extras`). The CLI reports it as bad input: one line, exit status 2."""
 
 

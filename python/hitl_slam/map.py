@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError, MissingExtra
+from hitl_slam.extras import install_hint
 from hitl_slam.geometry import chain_steps, to_world
 from hitl_slam.graph import PoseGraph
 
@@ -162,8 +163,8 @@ class Map:
         png = self._repr_png_()
         if png is None:
             return (
-                f"<div><code>{summary}</code><br><small>pip install 'hitl-slam[plot]' to see the "
-                "map</small></div>"
+                f"<div><code>{summary}</code><br><small>{html.escape(install_hint('plot'))} to "
+                "see the map</small></div>"
             )
         data = base64.b64encode(png).decode("ascii")
         return (
