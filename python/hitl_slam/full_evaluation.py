@@ -18,7 +18,7 @@ import json
 import math
 import re
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -48,6 +48,7 @@ __all__ = [
     "run_full",
     "runs_json",
     "summary",
+    "targets_met",
 ]
 
 
@@ -462,6 +463,20 @@ def summary(runs: Sequence[Run]) -> dict[str, float]:
     }
 
 
+def targets_met(s: Mapping[str, float]) -> dict[str, bool]:
+    """Which of the benchmark's targets the :func:`summary` ``s`` meets: ``accepted`` (at least
+    95% of the drawings accepted), ``worse`` (none made its map worse), ``achieved`` (at least 80%
+    of the achievable inconsistency reduction), ``angle`` (at most 1 degree after) and
+    ``spacing`` (at most 3 cm after); a figure that is NaN meets nothing."""
+    return {
+        "accepted": s["accepted_share"] >= 0.95,
+        "worse": s["worse"] == 0,
+        "achieved": s["achieved"] >= 0.80,
+        "angle": s["angle_after"] <= 1.0,
+        "spacing": s["spacing_after"] <= 0.03,
+    }
+
+
 def _fmt_run(r: Run) -> str:
     return (
         f"| {r.map} | {r.fault} | {100 * r.noise_m:.0f} | {r.poses} | {len(r.drawings)} "
@@ -542,13 +557,7 @@ def runs_json(runs: Sequence[Run]) -> str:
 def full_report(runs: Sequence[Run], provenance: str) -> str:
     """The Markdown report: targets, the table per run, refusals by reason, every drawing."""
     s = summary(runs)
-    ok = {
-        "accepted": s["accepted_share"] >= 0.95,
-        "worse": s["worse"] == 0,
-        "achieved": s["achieved"] >= 0.80,
-        "angle": s["angle_after"] <= 1.0,
-        "spacing": s["spacing_after"] <= 0.03,
-    }
+    ok = targets_met(s)
 
     def met(flag: bool) -> str:
         return "yes" if flag else "**no**"

@@ -6,11 +6,12 @@ the package root; without matplotlib importing it raises :class:`~hitl_slam.erro
 
 from __future__ import annotations
 
+import io
 import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -22,8 +23,11 @@ from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import InputError
 from hitl_slam.extras import missing_extra
 from hitl_slam.geometry import principal_axes
-from hitl_slam.io.atomic import atomic_binary_writer
+from hitl_slam.io.atomic import atomic_binary_writer, atomic_write_bytes
 from hitl_slam.map import Map
+
+if TYPE_CHECKING:
+    from hitl_slam.metrics import Inconsistency
 
 try:
     from matplotlib.axes import Axes
@@ -41,6 +45,7 @@ __all__ = [
     "plot_map",
     "write_before_after",
     "write_heat_map",
+    "write_inconsistency_heat_map",
     "write_information_matrix",
     "write_map",
 ]
@@ -750,3 +755,40 @@ def write_heat_map(
     ax.set_xlim(extent[0], extent[1])
     ax.set_ylim(extent[2], extent[3])
     return _save(fig, target, fmt, dpi_v)
+
+
+def write_inconsistency_heat_map(map: Map, result: Inconsistency, path: PathLike) -> Path:
+    """The figure ``hitl-slam metrics --heat-map`` writes, as a PNG (whatever the extension): the
+    map's observations (under its own poses) in grey, and over them the cells of ``result``
+    (:func:`hitl_slam.metrics.inconsistency` of that map) with a count above zero, on a log colour
+    scale from 1, the total in the title. Rendered in memory first, then written atomically (a
+    failure or a kill leaves no half-written file under the name). Returns the path written."""
+    heat = np.ma.masked_less_equal(result.heat, 0.0)
+    world = map.world_points()
+    left, right, bottom, top = result.extent
+    aspect = (top - bottom) / max(right - left, 1e-9)
+    fig = Figure(figsize=(10.0, max(3.0, min(10.0, 10.0 * aspect)) + 0.8))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    ax.scatter(world[:, 0], world[:, 1], s=0.05, c="0.75", linewidths=0, rasterized=True)
+    if heat.count():
+        image = ax.imshow(
+            heat,
+            origin="lower",
+            extent=result.extent,
+            cmap="inferno",
+            norm=LogNorm(vmin=1.0, vmax=max(float(heat.max()), 1.0)),
+            interpolation="nearest",
+        )
+        fig.colorbar(image, ax=ax, label="scan pairs (free vs occupied)", shrink=0.8)
+    ax.set_xlim(left, right)
+    ax.set_ylim(bottom, top)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"{map.name}: inconsistency {result.total_m2:.2f} m^2")
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=150, bbox_inches="tight")
+    target = Path(os.fspath(path))
+    atomic_write_bytes(target, buffer.getvalue())
+    return target

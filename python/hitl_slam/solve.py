@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from hitl_slam._core import SolveReport
 from hitl_slam.errors import InputError
+from hitl_slam.geometry import compose_rows, invert, wrap
 from hitl_slam.graph import PoseGraph
 
 __all__ = [
@@ -24,6 +25,7 @@ __all__ = [
     "RobustSpec",
     "chi2",
     "downweighted",
+    "edge_chi2",
     "marginals",
     "optimize",
     "robust_pairs",
@@ -204,6 +206,28 @@ def optimize(
 def chi2(graph: PoseGraph, poses: ArrayLike | None = None) -> float:
     """chi2 = sum over edges of r^T Omega r at ``poses`` (default: the graph's own poses)."""
     return graph.engine().chi2(_poses(graph, poses))
+
+
+def edge_chi2(graph: PoseGraph, poses: ArrayLike | None = None) -> NDArray[np.float64]:
+    """``(M,)`` per edge ``r^T Omega r`` at ``poses`` (default: the graph's own poses), in numpy,
+    with ``r`` the relative pose error ``t_i_j^-1 (x_i^-1 x_j)`` as ``(x, y, theta)`` (heading
+    wrapped): to find the edges that carry the error (where a damaged vertex or edge shows).
+
+    Not exactly the terms of :func:`chi2`: the solver's residual is the error's SE(2) logarithm,
+    whose translation is ``V(theta)^-1`` times this one (its length larger by
+    ``(theta/2) / sin(theta/2)``, 0.5% at 0.35 rad), so the two agree to first order in the
+    error's angle and their sums differ a little. Unlike :func:`chi2` it never builds the
+    engine, so it also takes a graph the solver refuses or one whose values are damaged: a
+    non-finite value gives a non-finite term (no warning).
+    """
+    start = _poses(graph, poses)
+    i, j = graph.edges[:, 0], graph.edges[:, 1]
+    with np.errstate(all="ignore"):
+        predicted = compose_rows(invert(start[i]), start[j])
+        r = compose_rows(invert(graph.measurements), predicted)
+        r[:, 2] = wrap(r[:, 2])
+        per_edge: NDArray[np.float64] = np.einsum("ei,eij,ej->e", r, graph.information, r)
+    return per_edge
 
 
 def marginals(graph: PoseGraph, poses: ArrayLike | None, indices: ArrayLike) -> NDArray[np.float64]:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import os
+from pathlib import Path
 
 import numpy as np
 
@@ -17,7 +18,7 @@ from hitl_slam.io.rosbag import BAG_EXTENSIONS, DEFAULT_BAG_OPTIONS, BagOptions,
 from hitl_slam.io.textfile import check_regular_file
 from hitl_slam.map import Map
 
-__all__ = ["MAP_EXTENSIONS", "load_map"]
+__all__ = ["MAP_EXTENSIONS", "load_map", "looks_like_carmen", "map_kind"]
 
 MAP_EXTENSIONS = (".covars", ".clf", ".log", *BAG_EXTENSIONS, ".hitl")
 """What :func:`load_map` reads; CARMEN logs may also end in ``.gz`` or ``.bz2``, and a ROS 2 bag
@@ -102,6 +103,37 @@ def load_map(
         f"{name}: cannot read a map from {shown!r}; supported: {supported} "
         "(CARMEN logs also as .gz or .bz2; a ROS 2 bag also as its directory)"
     )
+
+
+def map_kind(path: str | os.PathLike[str]) -> str | None:
+    """What kind of map ``path`` names by its extension (one of :data:`MAP_EXTENSIONS`, also
+    under ``.gz``/``.bz2``), as words for a message: ``"a CARMEN log"``,
+    ``"a ROS bag"``, ``"a .covars map"`` or ``"a session"``; None for anything else (a pose
+    graph, no extension). Only the name is looked at."""
+    extension, _ = _extensions(Path(os.fspath(path)).name)
+    if extension not in MAP_EXTENSIONS:
+        return None
+    if extension in BAG_EXTENSIONS:
+        return "a ROS bag"
+    return {".covars": "a .covars map", ".hitl": "a session"}.get(extension, "a CARMEN log")
+
+
+_CARMEN_WORDS = (b"PARAM", b"ODOM", b"FLASER", b"RLASER", b"ROBOTLASER1", b"RAWLASER", b"TRUEPOS")
+
+
+def looks_like_carmen(path: str | os.PathLike[str]) -> bool:
+    """Whether the first data line of the (uncompressed) file ``path`` starts with a CARMEN
+    message name, whatever its extension; False when it cannot be read."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(65536)
+    except OSError:
+        return False
+    for line in head.splitlines():
+        words = line.split()
+        if words and not words[0].startswith(b"#"):
+            return words[0] in _CARMEN_WORDS
+    return False
 
 
 def _warn_if_empty(laser_map: Map) -> Map:
