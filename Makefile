@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 DEMO := build/demo
 
-.PHONY: setup browser demo test lint test-rust test-python bench kill-trials clean
+.PHONY: setup browser demo test test-fast lint test-rust test-python bench kill-trials clean
 
 $(BIN)/python:
 	@echo "setup: creating the virtualenv $(VENV)"
@@ -61,6 +61,12 @@ test-python: setup browser
 	$(BIN)/python -m pytest
 
 test: lint test-rust test-python
+
+# The unit tests alone (no public datasets, no browser, no fuzzing, nothing slow; the markers are
+# in pyproject.toml and tests/conftest.py): a few minutes, for the edit-test loop. `make test` is
+# what CI runs.
+test-fast: setup
+	$(BIN)/python -m pytest -q -m "not datasets and not browser and not fuzz and not slow"
 
 # Long measurements; not part of `make test`.
 bench: setup

@@ -115,6 +115,11 @@ def test_load_correct_save_through_the_public_api(world: World, tmp_path: Path) 
     with hitl_slam.Session.new(m, session_path) as session:
         outcome = session.apply(correction)
         assert session.history[-1].status is hitl_slam.EntryStatus.APPLIED
+        # What a person prints reads as a line per part, not thousands of point indices.
+        shown = repr(session.history[-1])
+        assert len(shown) < 800, shown
+        assert "interpretation=Interpretation(" in shown
+        assert " points from " in shown
         after = session.poses.copy()
         session.save(tmp_path / "fixed.covars")
     # The fault bent the second pass 4 degrees off the wall; the correction puts it back on.

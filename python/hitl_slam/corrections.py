@@ -111,6 +111,22 @@ class Interpretation:
     log_likelihood: tuple[float, float] = (0.0, 0.0)
     notes: tuple[str, ...] = ()
 
+    def __repr__(self) -> str:
+        """A line a person can read (the observation sets summarized, not listed)."""
+
+        def side(rows: NDArray[np.int64], poses: NDArray[np.int64]) -> str:
+            where = f"poses {poses.min()}-{poses.max()}" if len(poses) else "no poses"
+            return f"{len(rows)} points from {len(poses)} poses ({where})"
+
+        def seg(s: Segment) -> str:
+            return f"(({s[0][0]:.2f}, {s[0][1]:.2f}), ({s[1][0]:.2f}, {s[1][1]:.2f}))"
+
+        return (
+            f"Interpretation({self.mode.value}, a: {side(self.s_a, self.x_a)} on "
+            f"{seg(self.line_a)}, b: {side(self.s_b, self.x_b)} on {seg(self.line_b)}, "
+            f"{len(self.notes)} notes{', swapped' if self.swapped else ''})"
+        )
+
     def to_json(self, *, arrays: bool = False) -> dict[str, Any]:
         """The JSON object (plain lists and numbers). ``arrays``: S_a, S_b, X_a and X_b as int64
         arrays (copies) instead of lists, for :meth:`hitl_slam.journal.Journal.append`, which
