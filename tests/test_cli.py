@@ -187,3 +187,14 @@ def test_metrics_reads_a_silent_log_as_the_sensor_saw_it(
     captured = capsys.readouterr()
     assert "inferred" not in captured.err
     assert "6600 points" not in captured.out
+    # A session made from the log carries the note; commands on it do not repeat it.
+    session = tmp_path / "silent.hitl"
+    from hitl_slam import Session, load_map
+
+    Session.new(load_map(log), session).close()
+    capsys.readouterr()
+    for command in (["metrics", str(session)], ["export", str(session), "-o", "x.g2o"]):
+        if command[0] == "export":
+            command[-1] = str(tmp_path / "x.g2o")
+        assert main([*command, "--quiet"]) == 0
+        assert "maximum laser range" not in capsys.readouterr().err

@@ -143,8 +143,9 @@ def with_progress(label: str, quiet: bool, work: Callable[[], T]) -> T:
 
 def load_map(args: argparse.Namespace, source: str | Path) -> Map:
     """The map of a command's MAP argument, with ``--max-range``; says on stderr how the laser's
-    maximum range was found when the log stated none."""
-    from hitl_slam.io.maps import load_map
+    maximum range was found when the log stated none (once: when the log is read, not at every
+    command on a session made from it, which carries the same note in its metadata)."""
+    from hitl_slam.io.maps import load_map, map_kind
 
     max_range = getattr(args, "max_range", None)
     bag = bag_options(args)
@@ -152,7 +153,7 @@ def load_map(args: argparse.Namespace, source: str | Path) -> Map:
         "loading", args.quiet, lambda: load_map(source, max_range=max_range, bag=bag)
     )
     how = the_map.metadata.get("max_range_source")
-    if isinstance(how, str) and how.startswith("inferred"):
+    if isinstance(how, str) and how.startswith("inferred") and map_kind(source) != "a session":
         print(f"hitl-slam: {source}: maximum laser range {how}", file=sys.stderr)
     return the_map
 
