@@ -46,6 +46,13 @@ def png_size(path: Path) -> tuple[int, int]:
     return int(width), int(height)
 
 
+def _png_pixels(path: Path) -> NDArray[np.float64]:
+    """The RGB pixels of a PNG in [0, 1], (H, W, 3)."""
+    import matplotlib.image
+
+    return np.asarray(matplotlib.image.imread(path), dtype=np.float64)[..., :3]
+
+
 def _segment(points: FloatArray) -> tuple[tuple[float, float], tuple[float, float]]:
     c = points.mean(axis=0)
     _, vecs = np.linalg.eigh((points - c).T @ (points - c))
@@ -200,7 +207,10 @@ def test_heat_map(world: World, tmp_path: Path) -> None:
     rng = np.random.default_rng(0)
     heat = rng.poisson(0.3, size=(120, 220)).astype(np.int64)
     out = plot.write_heat_map(heat, (-1.0, -1.0), 0.1, tmp_path / "heat.png", dpi=50)
-    assert png_size(out) == (500, 300)
+    # A wide grid keeps the figure's width and sheds height: no blank band above and below.
+    width, height = png_size(out)
+    assert width == 500
+    assert height < 300
     over = plot.write_heat_map(
         heat,
         np.array([-1.0, -1.0]),
@@ -212,8 +222,16 @@ def test_heat_map(world: World, tmp_path: Path) -> None:
     )
     assert over.read_text(encoding="utf-8").lstrip().startswith(("<?xml", "<svg"))
     zeros = plot.write_heat_map(np.zeros((3, 4)), (0, 0), 1.0, tmp_path / "zeros.png", dpi=20)
-    assert png_size(zeros) == (200, 120)
-    _only(tmp_path, "heat.png", "heat_map.svg", "zeros.png")
+    assert png_size(zeros)[1] == 120
+    # A tall grid keeps the height and sheds width: the picture is mostly map, not white margin.
+    tall = plot.write_heat_map(heat.T, (0, 0), 0.1, tmp_path / "tall.png", dpi=50)
+    tall_width, tall_height = png_size(tall)
+    assert tall_height == 300
+    assert tall_width < 300
+    pixels = _png_pixels(tall)
+    blank_columns = np.all(pixels > 0.97, axis=(0, 2)).mean()
+    assert blank_columns < 0.15, blank_columns
+    _only(tmp_path, "heat.png", "heat_map.svg", "zeros.png", "tall.png")
 
 
 # --------------------------------------------------------------------------------------------

@@ -6,7 +6,6 @@ the package root; without matplotlib importing it raises :class:`~hitl_slam.erro
 
 from __future__ import annotations
 
-import io
 import math
 import os
 from collections.abc import Sequence
@@ -23,7 +22,7 @@ from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
 from hitl_slam.errors import InputError
 from hitl_slam.extras import missing_extra
 from hitl_slam.geometry import principal_axes
-from hitl_slam.io.atomic import atomic_binary_writer, atomic_write_bytes
+from hitl_slam.io.atomic import atomic_binary_writer
 from hitl_slam.map import Map
 
 if TYPE_CHECKING:
@@ -201,6 +200,24 @@ def _new_figure(size: tuple[float, float], dpi: float) -> Figure:
     fig = Figure(figsize=size, dpi=dpi, layout="constrained")
     FigureCanvasAgg(fig)
     return fig
+
+
+def _fitted_size(
+    size: tuple[float, float],
+    extent: tuple[float, float, float, float],
+    margins: tuple[float, float],
+) -> tuple[float, float]:
+    """The figure size [in] within ``size`` whose axes, drawn at equal aspect, fill their box
+    for data spanning ``extent`` (x0, x1, y0, y1): the longer side keeps its length and the other
+    shrinks, so the picture has no blank band beside the map. ``margins``: the width and height
+    [in] of what is not the axes (colour bar, labels, title)."""
+    width, height = size
+    span_x, span_y = extent[1] - extent[0], extent[3] - extent[2]
+    box_w, box_h = max(width - margins[0], 1.0), max(height - margins[1], 1.0)
+    aspect = span_y / span_x if span_x > 0 and span_y > 0 else box_h / box_w
+    if aspect > box_h / box_w:
+        return (box_h / aspect + margins[0], height)
+    return (width, box_w * aspect + margins[1])
 
 
 def _save(fig: Figure, target: Path, fmt: str, dpi: float) -> Path:
@@ -707,10 +724,10 @@ def write_heat_map(
     elif poses is not None:
         raise InputError("poses given without a map; pass map= too")
 
-    fig = _new_figure(fig_size, dpi_v)
-    ax = fig.add_subplot()
     height, width = h.shape
     extent = (float(o[0]), float(o[0] + width * res), float(o[1]), float(o[1] + height * res))
+    fig = _new_figure(_fitted_size(fig_size, extent, (2.4, 1.0)), dpi_v)
+    ax = fig.add_subplot()
     shown = np.ma.masked_less_equal(h, 0.0)
     top = float(h.max()) if h.max() > 0 else 1.0
     norm: Normalize
@@ -758,37 +775,15 @@ def write_heat_map(
 
 
 def write_inconsistency_heat_map(map: Map, result: Inconsistency, path: PathLike) -> Path:
-    """The figure ``hitl-slam metrics --heat-map`` writes, as a PNG (whatever the extension): the
-    map's observations (under its own poses) in grey, and over them the cells of ``result``
-    (:func:`hitl_slam.metrics.inconsistency` of that map) with a count above zero, on a log colour
-    scale from 1, the total in the title. Rendered in memory first, then written atomically (a
-    failure or a kill leaves no half-written file under the name). Returns the path written."""
-    heat = np.ma.masked_less_equal(result.heat, 0.0)
-    world = map.world_points()
-    left, right, bottom, top = result.extent
-    aspect = (top - bottom) / max(right - left, 1e-9)
-    fig = Figure(figsize=(10.0, max(3.0, min(10.0, 10.0 * aspect)) + 0.8))
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot()
-    ax.scatter(world[:, 0], world[:, 1], s=0.05, c="0.75", linewidths=0, rasterized=True)
-    if heat.count():
-        image = ax.imshow(
-            heat,
-            origin="lower",
-            extent=result.extent,
-            cmap="inferno",
-            norm=LogNorm(vmin=1.0, vmax=max(float(heat.max()), 1.0)),
-            interpolation="nearest",
-        )
-        fig.colorbar(image, ax=ax, label="scan pairs (free vs occupied)", shrink=0.8)
-    ax.set_xlim(left, right)
-    ax.set_ylim(bottom, top)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_title(f"{map.name}: inconsistency {result.total_m2:.2f} m^2")
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=150, bbox_inches="tight")
-    target = Path(os.fspath(path))
-    atomic_write_bytes(target, buffer.getvalue())
-    return target
+    """The figure ``hitl-slam metrics --heat-map`` writes: :func:`write_heat_map` of ``result``
+    (:func:`hitl_slam.metrics.inconsistency` of ``map``) on a log colour scale, with the map's
+    observations under its own poses and the total in the title. Returns the path written."""
+    return write_heat_map(
+        result.heat,
+        result.origin,
+        result.resolution,
+        path,
+        map=map,
+        log_scale=True,
+        title=f"{map.name}: inconsistency {result.total_m2:.2f} m$^2$",
+    )
