@@ -60,13 +60,6 @@ CHILD_SOLVERS = {
 # --- the chains ----------------------------------------------------------------------------------
 
 
-def _wrap(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Angles into (-pi, pi]."""
-    import numpy as np
-
-    return np.asarray(math.pi - np.mod(math.pi - theta, 2.0 * math.pi))
-
-
 def jittered_chain(
     num_poses: int, turn_sigma: float, sigma_xy: float, sigma_thetas: Sequence[float], seed: int
 ) -> tuple[list[PoseGraph], NDArray[np.float64]]:
@@ -79,6 +72,7 @@ def jittered_chain(
     """
     import numpy as np
 
+    from hitl_slam.geometry import wrap
     from hitl_slam.graph import PoseGraph
 
     rng = np.random.default_rng(seed)
@@ -88,7 +82,7 @@ def jittered_chain(
         [
             np.concatenate([[0.0], np.cumsum(np.cos(heading[:-1]))]),
             np.concatenate([[0.0], np.cumsum(np.sin(heading[:-1]))]),
-            _wrap(heading),
+            wrap(heading),
         ]
     )
     edges = np.column_stack([np.arange(num_poses - 1), np.arange(1, num_poses)]).astype(np.int64)
@@ -100,7 +94,7 @@ def jittered_chain(
     for sigma_theta in sigma_thetas:
         guess = truth.copy()
         guess[1:, :2] += noise_xy
-        guess[1:, 2] = _wrap(guess[1:, 2] + sigma_theta * noise_theta)
+        guess[1:, 2] = wrap(guess[1:, 2] + sigma_theta * noise_theta)
         graphs.append(PoseGraph(guess, edges, measurements, information))
     return graphs, truth
 

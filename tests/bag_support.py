@@ -18,6 +18,8 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+from reference import compose, inverse, wrap
+
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
@@ -240,10 +242,10 @@ def slam_bag_of_log(
         ranges = np.where((r > 0) & (r < limit), r, np.inf)
         scans.append(Scan(stamps[-1], ranges, -math.pi / 2, step, 0.0, 80.0, "base_link"))
     trajectory = np.array(slam)
-    trajectory[:, 2] = np.arctan2(np.sin(trajectory[:, 2]), np.cos(trajectory[:, 2]))
+    trajectory[:, 2] = wrap(trajectory[:, 2])
     drift = np.cumsum(rng.normal(0, [0.01, 0.01, 0.004], trajectory.shape), axis=0)
-    odometry = _compose(trajectory, drift)
-    map_odom = _compose(trajectory, _inverse(odometry))
+    odometry = compose(trajectory, drift)
+    map_odom = compose(trajectory, inverse(odometry))
     bag = Bag(scans=scans)
     for k, stamp in enumerate(stamps):
         group = [Transform(stamp, "odom", "base_link", tuple(odometry[k]))]
@@ -251,21 +253,3 @@ def slam_bag_of_log(
             group.append(Transform(stamp, "map", "odom", tuple(map_odom[k])))
         bag.tf.append(group)
     return bag, trajectory
-
-
-def _compose(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    theta = a[:, 2] + b[:, 2]
-    return np.stack(
-        [
-            a[:, 0] + c * b[:, 0] - s * b[:, 1],
-            a[:, 1] + s * b[:, 0] + c * b[:, 1],
-            np.arctan2(np.sin(theta), np.cos(theta)),
-        ],
-        axis=1,
-    )
-
-
-def _inverse(a: NDArray[np.float64]) -> NDArray[np.float64]:
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    return np.stack([-c * a[:, 0] - s * a[:, 1], s * a[:, 0] - c * a[:, 1], -a[:, 2]], axis=1)

@@ -1,6 +1,10 @@
-"""An independent numpy implementation of the pose-graph cost, for cross-checking the core.
+"""The tests' one reference plane geometry, and an independent numpy implementation of the
+pose-graph cost built on it, for cross-checking the core and :mod:`hitl_slam.geometry`.
 
-Written from the definitions (GTSAM's Pose2 conventions), sharing no code with the package.
+Written from the definitions (GTSAM's Pose2 conventions), sharing no code with the package: other
+formulas where the package has its own (``wrap`` here is ``pi - (pi - a) mod 2 pi``, the line
+fit an eigen-decomposition), so a test that compares the two checks something. Poses are
+``(x, y, theta)`` rows, ``(3,)`` or ``(K, 3)`` (broadcast); headings in (-pi, pi].
 """
 
 from __future__ import annotations
@@ -20,8 +24,14 @@ def wrap(theta: FloatArray) -> FloatArray:
     return np.asarray(math.pi - np.mod(math.pi - theta, 2.0 * math.pi))
 
 
+def _pair(a: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray]:
+    p, q = np.broadcast_arrays(np.atleast_2d(a), np.atleast_2d(b))
+    return np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)
+
+
 def between(a: FloatArray, b: FloatArray) -> FloatArray:
     """Rows of a^-1 * b."""
+    a, b = _pair(a, b)
     c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
     dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
     return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap(b[:, 2] - a[:, 2])], axis=1)
@@ -52,6 +62,7 @@ def exp(v: FloatArray) -> FloatArray:
 
 def compose(a: FloatArray, b: FloatArray) -> FloatArray:
     """Rows of a * b."""
+    a, b = _pair(a, b)
     c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
     return np.stack(
         [
@@ -61,6 +72,39 @@ def compose(a: FloatArray, b: FloatArray) -> FloatArray:
         ],
         axis=1,
     )
+
+
+def inverse(a: FloatArray) -> FloatArray:
+    """Rows of a^-1: the pose whose composition with a is the identity."""
+    a = np.atleast_2d(np.asarray(a, dtype=np.float64))
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    x, y = a[:, 0], a[:, 1]
+    return np.stack([-c * x - s * y, s * x - c * y, wrap(-a[:, 2])], axis=1)
+
+
+def transform_points(pose: FloatArray, points: FloatArray) -> FloatArray:
+    """Robot-frame ``points`` (K, 2) in the world, R p + t, seen from one ``pose`` (3,) or row
+    by row from ``poses`` (K, 3)."""
+    x, p = np.asarray(pose, dtype=np.float64), np.asarray(points, dtype=np.float64)
+    c, s = np.cos(x[..., 2]), np.sin(x[..., 2])
+    u, v = p[..., 0], p[..., 1]
+    return np.stack([x[..., 0] + c * u - s * v, x[..., 1] + s * u + c * v], axis=-1)
+
+
+def fit_line(points: FloatArray) -> tuple[float, float]:
+    """Total-least-squares line ``(phi, rho)`` of ``points`` (K, 2): the scatter's eigenvector of
+    the smallest eigenvalue as the normal, pointing to +x (to +y when it is vertical), then
+    turned so that ``rho >= 0``. For points with a principal direction."""
+    centre = points.mean(axis=0)
+    d = points - centre
+    _, vectors = np.linalg.eigh(d.T @ d)
+    n = vectors[:, 0]
+    if n[0] < -1e-12 or (abs(n[0]) <= 1e-12 and n[1] < 0):
+        n = -n
+    rho = float(n @ centre)
+    if rho < 0:
+        n, rho = -n, -rho
+    return math.atan2(n[1], n[0]), rho
 
 
 def residuals(graph: PoseGraph, poses: FloatArray) -> FloatArray:

@@ -17,6 +17,7 @@ from hitl_slam.io.carmen import read_carmen
 from hitl_slam.io.carmen_writer import write_carmen
 from hitl_slam.map import Map
 from hitl_slam.sim import lost_poses_room
+from reference import wrap
 
 ROOT = Path(__file__).resolve().parents[1]
 LASER = ROOT.parent / "shared" / "datasets" / "laser"
@@ -62,7 +63,7 @@ def _robotlaser_log(path: Path, offset: float) -> list[tuple[float, float, float
 def _moved(poses: np.ndarray, seed: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
     out = poses + rng.normal(0.0, [0.2, 0.2, 0.1], poses.shape)
-    out[:, 2] = np.angle(np.exp(1j * out[:, 2]))
+    out[:, 2] = wrap(out[:, 2])
     return out
 
 
@@ -163,7 +164,7 @@ def test_scans_of_uneven_bearings_read_back_within_half_a_beam(tmp_path: Path) -
         for p, r in zip(b, rb, strict=True):
             i = int(np.argmin(np.abs(ra - r)))
             assert abs(ra[i] - r) < 1e-9
-            gap = abs(np.angle(np.exp(1j * (np.arctan2(p[1], p[0]) - np.arctan2(*a[i][::-1])))))
+            gap = abs(wrap(np.arctan2(p[1], p[0]) - np.arctan2(*a[i][::-1])))
             assert gap <= 0.5 * math.radians(4.0 / 59 * 180 / math.pi) + 1e-9
 
 

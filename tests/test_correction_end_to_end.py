@@ -33,6 +33,7 @@ from hitl_slam.sim.corridor import (
     corridor_loop,
     drawn_segment,
 )
+from reference import wrap
 
 FloatArray = NDArray[np.float64]
 
@@ -107,7 +108,7 @@ def test_lines_are_undirected(world: World, mode: Mode) -> None:
         np.testing.assert_array_equal(other.interpretation.s_a, base.interpretation.s_a)
         np.testing.assert_array_equal(other.interpretation.s_b, base.interpretation.s_b)
         np.testing.assert_allclose(other.poses[:, :2], base.poses[:, :2], rtol=0, atol=1e-9)
-        d = np.angle(np.exp(1j * (other.poses[:, 2] - base.poses[:, 2])))
+        d = wrap(other.poses[:, 2] - base.poses[:, 2])
         assert np.abs(d).max() < 1e-9
 
 

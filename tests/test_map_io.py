@@ -31,6 +31,7 @@ from hitl_slam.io.export import (
 )
 from hitl_slam.io.relations import Relations, match_relations, read_relations
 from hitl_slam.map import InformationSource, Map
+from reference import wrap
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 LASER = SHARED / "datasets" / "laser"
@@ -59,10 +60,6 @@ def write(tmp_path: Path, name: str, text: str) -> Path:
     path = tmp_path / name
     path.write_text(text, encoding="utf-8")
     return path
-
-
-def wrap(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-    return np.asarray(np.remainder(theta + math.pi, 2 * math.pi) - math.pi)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -30,6 +30,7 @@ from hitl_slam.metrics import (
     table1,
 )
 from hitl_slam.sim.corridor import World, corridor_loop
+from reference import wrap
 
 FloatArray = NDArray[np.float64]
 
@@ -320,7 +321,7 @@ def timed_walk(rng: np.random.Generator, n: int) -> tuple[Map, FloatArray, Path]
     """A map of ``n`` scans 0.2 s apart (jittered) whose poses are a noisy copy of a random walk,
     and relations between random pairs of scans made from the walk (the truth)."""
     truth = np.cumsum(rng.normal(0, [0.3, 0.3, 0.2], (n, 3)), axis=0)
-    truth[:, 2] = np.arctan2(np.sin(truth[:, 2]), np.cos(truth[:, 2]))
+    truth[:, 2] = wrap(truth[:, 2])
     poses = truth + rng.normal(0, [0.02, 0.02, 0.01], (n, 3))
     stamps = 1000.0 + 0.2 * np.arange(n) + rng.uniform(-0.01, 0.01, n)
     scans = [np.array([[1.0, 0.0]])] * n

@@ -34,6 +34,7 @@ from hitl_slam.io.carmen import read_carmen
 from hitl_slam.io.maps import load_map
 from hitl_slam.io.rosbag import BagOptions, is_rosbag, read_rosbag
 from hitl_slam.map import Map, motion_model_information
+from reference import compose, inverse, transform_points, wrap
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 LASER = SHARED / "datasets" / "laser"
@@ -45,44 +46,9 @@ FloatArray = NDArray[np.float64]
 SCANS = 300  # per bag made from a log: enough to mean something, fast to write and read
 
 
-# --- plane geometry, written out here so that the reader's own is not checked against itself ---
-
-
-def wrap(theta: FloatArray) -> FloatArray:
-    return np.arctan2(np.sin(theta), np.cos(theta))
-
-
-def compose(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Row by row a * b, (K, 3) or (3,) broadcast."""
-    a, b = np.broadcast_arrays(np.atleast_2d(a), np.atleast_2d(b))
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    return np.stack(
-        [
-            a[:, 0] + c * b[:, 0] - s * b[:, 1],
-            a[:, 1] + s * b[:, 0] + c * b[:, 1],
-            wrap(a[:, 2] + b[:, 2]),
-        ],
-        axis=1,
-    )
-
-
-def inverse(a: FloatArray) -> FloatArray:
-    a = np.atleast_2d(a)
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    return np.stack([-c * a[:, 0] - s * a[:, 1], s * a[:, 0] - c * a[:, 1], -a[:, 2]], axis=1)
-
-
-def transform_points(pose: FloatArray, points: FloatArray) -> FloatArray:
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    return points @ np.array([[c, s], [-s, c]]) + pose[:2]
-
-
 def world(m: Map, poses: FloatArray | None = None) -> FloatArray:
     p = m.poses if poses is None else poses
-    owner = m.pose_of_point()
-    c, s = np.cos(p[owner, 2]), np.sin(p[owner, 2])
-    x, y = m.points[:, 0], m.points[:, 1]
-    return np.stack([p[owner, 0] + c * x - s * y, p[owner, 1] + s * x + c * y], axis=1)
+    return transform_points(p[m.pose_of_point()], m.points)
 
 
 def assert_poses(actual: FloatArray, expected: FloatArray, atol: float = 1e-9) -> None:

@@ -28,6 +28,7 @@ from hitl_slam.metrics import inconsistency
 from hitl_slam.sim import lost_poses_room
 from hitl_slam.web import SessionHost
 from hitl_slam.web.server import open_session
+from reference import wrap
 
 LOG = Path(__file__).resolve().parents[1].parent / "shared/datasets/laser/orebro-corrected.log.gz"
 
@@ -41,7 +42,7 @@ def _bag(folder: Path, *, map_frame: bool = True, kind: str = "ros1") -> tuple[P
 
 
 def _angle(a: np.ndarray) -> np.ndarray:
-    return np.abs(np.arctan2(np.sin(a), np.cos(a)))
+    return np.abs(wrap(a))
 
 
 def test_a_bag_with_its_own_slam_is_served_from_its_trajectory(tmp_path: Path) -> None:

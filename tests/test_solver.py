@@ -121,7 +121,10 @@ def test_full_solves_match_scipy_least_squares(num_poses: int, seed: int, method
     )
     assert report.converged, report.termination
     theirs = _scipy_solve(graph)
-    np.testing.assert_allclose(ours[:, :2], theirs[:, :2], rtol=0, atol=1e-8)
+    # Both stop on a relative cost change of 1e-15, so each fixes the optimum only to ~1e-8 m
+    # (a move of 1e-8 m changes chi2 ~ 60 by ~1e-14): a rounding-level change of the graph
+    # (the synthetic world's angle wrapping, say) moves the two solutions apart by 1e-8 or so.
+    np.testing.assert_allclose(ours[:, :2], theirs[:, :2], rtol=0, atol=3e-8)
     np.testing.assert_allclose(wrap(ours[:, 2] - theirs[:, 2]), 0.0, atol=1e-8)
     assert report.final_chi2 == pytest.approx(reference_chi2(graph, ours), rel=1e-12)
 

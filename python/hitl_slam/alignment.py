@@ -43,6 +43,7 @@ from hitl_slam._core import SolveReport
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.corrections import Interpretation, Mode
 from hitl_slam.errors import AlignmentRefused, InputError, SolverError
+from hitl_slam.geometry import between, wrap
 from hitl_slam.map import InformationSource, Map
 
 __all__ = [
@@ -153,13 +154,8 @@ def contradicted_steps(map: Map, poses: FloatArray) -> tuple[NDArray[np.int64], 
     order = np.argsort(first, kind="stable")
     chain, first = chain[order], first[order]
     i, j = e[chain, 0], e[chain, 1]
-    c, s = np.cos(poses[i, 2]), np.sin(poses[i, 2])
-    d = poses[j, :2] - poses[i, :2]
-    rel = np.stack(
-        [c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], poses[j, 2] - poses[i, 2]], 1
-    )
-    r = rel - map.measurements[chain]
-    r[:, 2] = np.angle(np.exp(1j * r[:, 2]))
+    r = between(poses[i], poses[j]) - map.measurements[chain]
+    r[:, 2] = wrap(r[:, 2])
     d2 = np.einsum("ki,kij,kj->k", r, map.information[chain], r)
     return first.astype(np.int64), ~(d2 <= CHI2_3_999)
 

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
-from hitl_slam.geometry import fit_line
+from hitl_slam.geometry import between, fit_line, rotate, wrap
 from hitl_slam.io.relations import Relations, nearest_scans
 from hitl_slam.map import Map
 
@@ -147,8 +147,7 @@ def ate(estimate: ArrayLike, truth: ArrayLike, *, align: bool = True) -> float:
             float(np.sum(pc[:, 0] * qc[:, 1] - pc[:, 1] * qc[:, 0])),
             float(np.sum(pc[:, 0] * qc[:, 0] + pc[:, 1] * qc[:, 1])),
         )
-        c, s = math.cos(angle), math.sin(angle)
-        p = np.stack([c * pc[:, 0] - s * pc[:, 1], s * pc[:, 0] + c * pc[:, 1]], axis=1)
+        p = rotate(angle, pc)
         q = qc
     return float(np.sqrt(np.mean(np.sum((p - q) ** 2, axis=1))))
 
@@ -215,11 +214,6 @@ class RelationsError:
         return float(np.max(self.rotation_deg))
 
 
-def _wrap(a: FloatArray) -> FloatArray:
-    out = np.mod(a + math.pi, 2 * math.pi) - math.pi
-    return np.where(out <= -math.pi, out + 2 * math.pi, out)
-
-
 def relations_error(
     map: Map, poses: ArrayLike | None, relations: Relations, *, tolerance: float = 1e-3
 ) -> RelationsError:
@@ -252,14 +246,10 @@ def relations_error(
         )
     match = nearest_scans(relations, map.timestamps, tolerance)
     pairs, rows = match.pairs, match.rows
-    a, b = p[pairs[:, 0]], p[pairs[:, 1]]
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-    t_est = np.stack([c * dx + s * dy, -s * dx + c * dy], axis=1)
+    est = between(p[pairs[:, 0]], p[pairs[:, 1]])
     truth = relations.relative[rows]
-    translation = np.hypot(*(t_est - truth[:, :2]).T)
-    yaw_est = b[:, 2] - a[:, 2]
-    rotation = np.degrees(np.abs(_wrap(yaw_est - truth[:, 2])))
+    translation = np.hypot(*(est[:, :2] - truth[:, :2]).T)
+    rotation = np.degrees(np.abs(wrap(est[:, 2] - truth[:, 2])))
     return RelationsError(
         translation=np.ascontiguousarray(translation),
         rotation_deg=np.ascontiguousarray(rotation),

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
-from hitl_slam.geometry import chain_steps, compose
+from hitl_slam.geometry import chain_steps, compose, wrap
 from hitl_slam.map import Map
 
 __all__ = [
@@ -127,7 +127,7 @@ def _confirmed(map: Map, steps: FloatArray, k: int, r: float, config: Config) ->
         )
         if not ok[0]:
             continue
-        r2 = math.remainder(float(guess[0, 2] - found[0, 2]), 2 * math.pi)
+        r2 = wrap(float(guess[0, 2] - found[0, 2]))
         votes.append(
             r2 * r > 0
             and r2 * r2 / (4 * float(cov[0, 2, 2])) > config.odometry_check
@@ -231,7 +231,7 @@ def check_odometry(
     relaxed = []
     for k in np.flatnonzero(matched & has_edge):
         row = rows[k]
-        r = float(math.remainder(map.measurements[row, 2] - found[k, 2], 2 * math.pi))
+        r = wrap(float(map.measurements[row, 2] - found[k, 2]))
         try:
             odo_cov = np.linalg.inv(info[row])
         except np.linalg.LinAlgError:

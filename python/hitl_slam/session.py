@@ -32,7 +32,7 @@ from hitl_slam.errors import (
     SolverError,
     StepRefused,
 )
-from hitl_slam.geometry import fit_line
+from hitl_slam.geometry import fit_line, wrap
 from hitl_slam.io.atomic import atomic_outputs
 from hitl_slam.journal import Event, EventKind, Journal
 from hitl_slam.loop_closures import (
@@ -656,7 +656,7 @@ def moved_poses(before: NDArray[np.float64], after: NDArray[np.float64]) -> tupl
     """How many poses moved more than :data:`MOVED_DISTANCE_M` or :data:`MOVED_ANGLE_RAD`
     between two ``(N, 3)`` pose arrays, and the largest change of a position [m]."""
     distance = np.hypot(after[:, 0] - before[:, 0], after[:, 1] - before[:, 1])
-    turn = np.abs(np.mod(after[:, 2] - before[:, 2] + math.pi, 2.0 * math.pi) - math.pi)
+    turn = np.abs(wrap(after[:, 2] - before[:, 2]))
     moved = (distance > MOVED_DISTANCE_M) | (turn > MOVED_ANGLE_RAD)
     return int(np.count_nonzero(moved)), float(distance.max(initial=0.0))
 

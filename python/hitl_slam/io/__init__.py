@@ -8,9 +8,7 @@ from __future__ import annotations
 
 import enum
 import logging
-import math
 import os
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,6 +19,7 @@ from scipy.sparse import coo_array  # type: ignore[import-untyped, unused-ignore
 from scipy.sparse.csgraph import connected_components  # type: ignore[import-untyped, unused-ignore]
 
 from hitl_slam.errors import InputError
+from hitl_slam.geometry import compose, integrate, invert, wrap
 from hitl_slam.graph import PoseGraph
 from hitl_slam.io import g2o, toro
 from hitl_slam.io.atomic import atomic_write_text
@@ -41,7 +40,6 @@ from hitl_slam.io.textfile import (
 __all__ = ["GraphFormat", "LoadReport", "load_graph", "load_graph_with_report", "save_graph"]
 
 _log = logging.getLogger("hitl_slam")
-_TAU = 2.0 * math.pi
 _MAX_TAGS_SHOWN = 10
 
 
@@ -141,7 +139,7 @@ def save_graph(graph: PoseGraph, poses: ArrayLike | None, path: PathLike) -> Non
     vertex_ids, out_poses = _checked_for_saving(name, graph, poses)
     edge_ids = vertex_ids[graph.edges]
     measurements = graph.measurements.copy()
-    measurements[:, 2] = _wrap_angle(measurements[:, 2])
+    measurements[:, 2] = wrap(measurements[:, 2])
     _check_readable(name, fmt.syntax, out_poses, graph, measurements)
     if fmt is GraphFormat.G2O:
         text = g2o.format_text(
@@ -207,16 +205,6 @@ def _shown(tag: str) -> str:
     # Tags come from arbitrary files: keep them short and make control characters visible.
     short = tag if len(tag) <= 30 else tag[:30] + "..."
     return short if short.isprintable() else repr(short)
-
-
-def _wrap_angle(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-    # The same arithmetic as the Rust core's se2::wrap_angle, so both sides agree to the bit.
-    out = np.array(theta, dtype=np.float64)
-    outside = (out <= -math.pi) | (out > math.pi)
-    if outside.any():
-        w = np.mod(out[outside], _TAU)
-        out[outside] = np.where(w > math.pi, w - _TAU, w)
-    return out
 
 
 def _first_data_line(lines: list[str]) -> tuple[int, str] | None:
@@ -287,7 +275,7 @@ def _build(raw: RawGraph, fmt: GraphFormat) -> PoseGraph:
     edges = np.array(pairs, dtype=np.int64).reshape(-1, 2)
     values = np.array(raw.edge_values, dtype=np.float64).reshape(-1, 9)
     measurements = np.ascontiguousarray(values[:, :3])
-    measurements[:, 2] = _wrap_angle(measurements[:, 2])
+    measurements[:, 2] = wrap(measurements[:, 2])
     information = np.zeros((len(edges), 3, 3))
     rows = [r for r, _ in syntax.info_index]
     cols = [c for _, c in syntax.info_index]
@@ -318,7 +306,7 @@ def _build(raw: RawGraph, fmt: GraphFormat) -> PoseGraph:
                 "chaining the edges into initial poses overflowed (measurements too large)",
                 f"add {syntax.vertex_tag} lines with initial poses, or check the edge units",
             )
-    poses[:, 2] = _wrap_angle(poses[:, 2])
+    poses[:, 2] = wrap(poses[:, 2])
     _check_connected(path, ids, vertex_lines, edges, anchor)
     return PoseGraph(
         poses=poses,
@@ -388,39 +376,48 @@ def _chain_poses(
     n: int, edges: NDArray[np.int64], measurements: NDArray[np.float64]
 ) -> NDArray[np.float64]:
     """Initial poses composed from row 0 at the origin: odometry (row r-1 to row r) first, then
-    breadth-first over any edge for rows the odometry chain does not reach."""
+    breadth-first over any edge for rows the odometry chain does not reach (one vectorised
+    :func:`~hitl_slam.geometry.compose` per breadth-first level)."""
     neighbours: list[list[tuple[int, int]]] = [[] for _ in range(n)]
     for k, (i, j) in enumerate(edges.tolist()):
         neighbours[i].append((j, k))
         neighbours[j].append((i, k))
-    poses = np.zeros((n, 3))
-    placed = [False] * n
+    placed = np.zeros(n, dtype=bool)
     placed[0] = True
-    edge_list = edges.tolist()
-    meas = measurements.tolist()
 
-    def place(src: int, dst: int, k: int) -> None:
-        dx, dy, dth = meas[k]
-        if edge_list[k][0] != src:  # the edge measures src in dst's frame: invert it
-            c, s = math.cos(dth), math.sin(dth)
-            dx, dy, dth = -(c * dx + s * dy), s * dx - c * dy, -dth
-        x, y, th = poses[src]
-        c, s = math.cos(th), math.sin(th)
-        poses[dst] = (x + c * dx - s * dy, y + s * dx + c * dy, th + dth)
-        placed[dst] = True
+    def steps(src: list[int], ks: list[int]) -> NDArray[np.float64]:
+        """The measurements ``ks`` as steps from ``src``: inverted where an edge measures
+        ``src`` in the other pose's frame."""
+        z = measurements[ks].reshape(-1, 3).copy()
+        backwards = edges[ks, 0].reshape(-1) != np.array(src, dtype=np.int64)
+        z[backwards] = invert(z[backwards])
+        return z
 
-    for row in range(1, n):
-        if placed[row - 1]:
+    with np.errstate(over="ignore", invalid="ignore"):
+        # The odometry chain: a prefix of rows, each placed from the one before.
+        chain: list[int] = []
+        for row in range(1, n):
             odometry = next((k for other, k in neighbours[row - 1] if other == row), None)
-            if odometry is not None:
-                place(row - 1, row, odometry)
-    queue = deque(row for row in range(n) if placed[row])
-    while queue:
-        src = queue.popleft()
-        for dst, k in neighbours[src]:
-            if not placed[dst]:
-                place(src, dst, k)
-                queue.append(dst)
+            if odometry is None:
+                break
+            chain.append(odometry)
+        poses = np.zeros((n, 3))
+        rows = len(chain) + 1
+        poses[:rows] = integrate(np.zeros(3), steps(list(range(rows - 1)), chain))
+        placed[:rows] = True
+        frontier = list(range(rows))
+        while frontier:
+            src, dst, ks = [], [], []
+            for a in frontier:
+                for b, k in neighbours[a]:
+                    if not placed[b]:
+                        placed[b] = True
+                        src.append(a)
+                        dst.append(b)
+                        ks.append(k)
+            if dst:
+                poses[dst] = compose(poses[src], steps(src, ks))
+            frontier = dst
     return poses
 
 
@@ -535,7 +532,7 @@ def _checked_for_saving(
             f"poses have shape {out.shape} but the graph has {n} vertices",
             "pass one (x, y, theta) row per vertex",
         )
-    out[:, 2] = _wrap_angle(out[:, 2])
+    out[:, 2] = wrap(out[:, 2])
     vertex_ids = np.arange(n, dtype=np.int64) if graph.vertex_ids is None else graph.vertex_ids
     for label, array in (
         ("poses", out),

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
+from hitl_slam.geometry import compose, wrap
 from hitl_slam.io.textfile import (
     ANGLE_LIMIT,
     COORDINATE_LIMIT,
@@ -176,8 +177,8 @@ def read_carmen(
     if pose_source is PoseSource.LOGGED:
         poses = np.array(scans.logged)
     else:
-        poses = _compose(np.array(scans.robot), offset)
-    poses[:, 2] = _wrap(poses[:, 2])
+        poses = compose(np.array(scans.robot), offset)
+    poses[:, 2] = wrap(poses[:, 2])
     keep = _subsample(poses, min_travel, min_rotation)
 
     kept = np.flatnonzero(keep)
@@ -315,25 +316,6 @@ def _stem(name: str) -> str:
     return root if extension.lower() in (".clf", ".log") else base
 
 
-def _wrap(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Angles to (-pi, pi]."""
-    wrapped = np.mod(theta + math.pi, 2 * math.pi) - math.pi
-    return np.where(wrapped <= -math.pi, wrapped + 2 * math.pi, wrapped)
-
-
-def _compose(poses: NDArray[np.float64], offset: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``poses ∘ offset`` row by row (offset in the frame of each pose)."""
-    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-    return np.stack(
-        [
-            poses[:, 0] + c * offset[0] - s * offset[1],
-            poses[:, 1] + s * offset[0] + c * offset[1],
-            poses[:, 2] + offset[2],
-        ],
-        axis=1,
-    )
-
-
 def _subsample(
     poses: NDArray[np.float64], min_travel: float, min_rotation: float
 ) -> NDArray[np.bool_]:
@@ -344,7 +326,7 @@ def _subsample(
     for k in range(1, len(poses)):
         pose = poses[k]
         moved = math.hypot(pose[0] - last[0], pose[1] - last[1])
-        turned = abs(math.remainder(pose[2] - last[2], 2 * math.pi))
+        turned = abs(wrap(float(pose[2] - last[2])))
         if (min_travel > 0 and moved >= min_travel) or (
             min_rotation > 0 and turned >= min_rotation
         ):

@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hitl_slam.errors import InputError
-from hitl_slam.geometry import compose_rows
+from hitl_slam.geometry import compose, invert
 from hitl_slam.io.atomic import atomic_write_text
 from hitl_slam.io.carmen import _tag
 from hitl_slam.io.textfile import PathLike, check_regular_file, input_error, read_lines
@@ -80,15 +80,7 @@ def _rewrite(map: Map, poses: NDArray[np.float64], source: str) -> str:
     laser = str(map.metadata["laser"])
     scan_lines = np.asarray(map.metadata["scan_lines"], dtype=np.int64)
     offset = np.asarray(map.metadata.get("laser_offset", [0.0, 0.0, 0.0]), dtype=np.float64)
-    # robot = laser o offset^-1
-    inverse = np.array(
-        [
-            -math.cos(offset[2]) * offset[0] - math.sin(offset[2]) * offset[1],
-            math.sin(offset[2]) * offset[0] - math.cos(offset[2]) * offset[1],
-            -offset[2],
-        ]
-    )
-    robots = compose_rows(poses, np.broadcast_to(inverse, poses.shape))
+    robots = compose(poses, invert(offset))  # robot = laser o offset^-1
     pose_of_line = {int(line): k for k, line in enumerate(scan_lines)}
     by_stamp: dict[str, int] = {}
     flaser_copies: list[int] = []  # where the FLASER copies of ROBOTLASER1 scans are in `out`

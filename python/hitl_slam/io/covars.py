@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
+from hitl_slam.geometry import rotate, to_robot, wrap
 from hitl_slam.io.atomic import atomic_writer
 from hitl_slam.io.textfile import (
     ANGLE_LIMIT,
@@ -215,11 +216,8 @@ def _build(
     covariances = rows[starts, 7:16].reshape(n, 3, 3).copy()
 
     owner = np.repeat(np.arange(n), counts)
-    c, s = np.cos(pose_cols[:, 2]), np.sin(pose_cols[:, 2])
-    dx, dy = rows[:, 3] - rows[:, 0], rows[:, 4] - rows[:, 1]
-    nx, ny = rows[:, 5], rows[:, 6]
-    points = np.stack([c * dx + s * dy, -s * dx + c * dy], axis=1)
-    normals = np.stack([c * nx + s * ny, -s * nx + c * ny], axis=1)
+    points = to_robot(pose_cols, rows[:, 3:5])
+    normals = rotate(-pose_cols[:, 2], rows[:, 5:7])
     length = np.hypot(normals[:, 0], normals[:, 1])
     has_normal = length > 0
     normals[has_normal] /= length[has_normal, None]
@@ -237,8 +235,7 @@ def _build(
     scans = np.split(points, split_at)
     normal_list = np.split(normals, split_at) if has_normal.any() else None
 
-    poses[:, 2] = np.mod(poses[:, 2] + math.pi, 2 * math.pi) - math.pi
-    poses[poses[:, 2] <= -math.pi, 2] += 2 * math.pi
+    poses[:, 2] = wrap(poses[:, 2])
     known = np.any(covariances != 0, axis=(1, 2))
     usable = None
     if known.any():
@@ -335,10 +332,7 @@ def write_covars(map: Map, poses: ArrayLike, path: PathLike) -> None:
         stamp = float(map.timestamps[0]) if map.timestamps is not None else 0.0
     world = map.world_points(out_poses)
     normals = np.zeros_like(world) if map.normals is None else map.normals
-    c, s = np.cos(out_poses[map.pose_of_point(), 2]), np.sin(out_poses[map.pose_of_point(), 2])
-    world_normals = np.stack(
-        [c * normals[:, 0] - s * normals[:, 1], s * normals[:, 0] + c * normals[:, 1]], axis=1
-    )
+    world_normals = rotate(out_poses[map.pose_of_point(), 2], normals)
     written = _distinct_consecutive(out_poses)
     _check_writable(name, written, world, world_normals, cov)
     title = " ".join(map.name.split()) or "map"

@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
 from hitl_slam.extras import require
+from hitl_slam.geometry import to_world
 from hitl_slam.io import save_graph
 from hitl_slam.io.atomic import atomic_binary_writer, atomic_outputs, atomic_write_text
 from hitl_slam.io.carmen_writer import write_carmen
@@ -232,16 +233,10 @@ def _free_space_edges(
         depth = np.where(chord > 0, cross / chord, 0.0)  # distance sensor -> chord line
         scale = np.where(depth > margin, 1.0 - margin / depth, 0.0)
 
-    pose = poses[owner]
-    c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-
-    def world(p: NDArray[np.float64], k: NDArray[np.float64]) -> NDArray[np.float64]:
-        x, y = k * p[:, 0], k * p[:, 1]
-        return np.stack([c * x - s * y + pose[:, 0], s * x + c * y + pose[:, 1]], axis=1)
-
-    corner_a = world(a, scale)  # where the cut-back chord meets the beam of point a
-    corner_b = world(b, scale)
-    sensor = pose[:, :2]
+    # where the cut-back chord meets the beam of point a (of b)
+    corner_a = to_world(poses, owner, scale[:, None] * a)
+    corner_b = to_world(poses, owner, scale[:, None] * b)
+    sensor = poses[owner, :2]
     prev = np.where(np.arange(len(owner)) == first, last, np.arange(len(owner)) - 1)
     follow = has_pair[nxt]
     lead = has_pair[prev]

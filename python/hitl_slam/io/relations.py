@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hitl_slam.errors import InputError
+from hitl_slam.geometry import wrap
 from hitl_slam.io.textfile import (
     ANGLE_LIMIT,
     COORDINATE_LIMIT,
@@ -98,8 +99,7 @@ def read_relations(path: PathLike) -> Relations:
             name, None, "no relations in the file", "give a file of 't1 t2 dx dy dz roll pitch yaw'"
         )
     table = np.array(rows)
-    yaw = np.mod(table[:, 7] + math.pi, 2 * math.pi) - math.pi
-    yaw = np.where(yaw <= -math.pi, yaw + 2 * math.pi, yaw)
+    yaw = wrap(table[:, 7])
     return Relations(
         t1=table[:, 0].copy(),
         t2=table[:, 1].copy(),

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
 from hitl_slam.extras import require
-from hitl_slam.geometry import compose_rows, invert
+from hitl_slam.geometry import between, compose_rows, invert, wrap
 from hitl_slam.io.textfile import (
     MAX_ANGLE,
     MAX_COORDINATE,
@@ -460,24 +460,16 @@ def _interpolate(
         fraction = np.where(span > 0, offset / np.where(span > 0, span, 1.0), 0.0)
     fraction = np.where(valid, np.clip(fraction, 0.0, 1.0), 0.0)
     a, b = poses[left], poses[right]
-    turn = _wrap(b[:, 2] - a[:, 2])
+    turn = wrap(b[:, 2] - a[:, 2])
     out = np.stack(
         [
             a[:, 0] + fraction * (b[:, 0] - a[:, 0]),
             a[:, 1] + fraction * (b[:, 1] - a[:, 1]),
-            _wrap(a[:, 2] + fraction * turn),
+            wrap(a[:, 2] + fraction * turn),
         ],
         axis=1,
     )
     return out, valid
-
-
-def _wrap(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Angles to (-pi, pi], leaving those already there unchanged (bit for bit)."""
-    inside = (theta > -math.pi) & (theta <= math.pi)
-    wrapped = np.mod(theta + math.pi, 2 * math.pi) - math.pi
-    wrapped = np.where(wrapped <= -math.pi, wrapped + 2 * math.pi, wrapped)
-    return np.where(inside, theta, wrapped)
 
 
 def _checked(name: str, records: _Transforms) -> NDArray[np.float64]:
@@ -640,7 +632,7 @@ class _Tree:
         elif from_source is None:
             result = invert(from_target)
         else:
-            result = compose_rows(invert(from_target), from_source)
+            result = between(from_target, from_source)
         if result is None:
             result = np.zeros((len(when), 3))
         return result, valid

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from hitl_slam.geometry import principal_axes
+from hitl_slam.geometry import between, compose, principal_axes
 from hitl_slam.map import Map
 
 __all__ = ["WALLS", "World", "corridor_loop", "drawn_segment"]
@@ -110,20 +110,11 @@ def corridor_loop(
     est = np.empty_like(truth)
     est[0] = truth[0]
     for k in range(1, n):
-        a, b = truth[k - 1], truth[k]
-        c, s = math.cos(a[2]), math.sin(a[2])
-        dx, dy = b[0] - a[0], b[1] - a[1]
-        z = np.array([c * dx + s * dy, -s * dx + c * dy, math.remainder(b[2] - a[2], 2 * math.pi)])
+        z = between(truth[k - 1], truth[k])
         z += rng.normal(0.0, [odom_xy, odom_xy, odom_theta])
         if fault_at is not None and k == fault_at:
             z[2] += fault
-        p = est[k - 1]
-        c, s = math.cos(p[2]), math.sin(p[2])
-        est[k] = [
-            p[0] + c * z[0] - s * z[1],
-            p[1] + s * z[0] + c * z[1],
-            math.remainder(p[2] + z[2], 2 * math.pi),
-        ]
+        est[k] = compose(est[k - 1], z)
     the_map = Map.from_poses_and_scans(est, scans, name="corridor-loop")
     return World(map=the_map, truth=truth, wall_of_point=np.concatenate(walls).astype(np.int64))
 

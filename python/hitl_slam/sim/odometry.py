@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.errors import InputError
+from hitl_slam.geometry import chain_steps, integrate
 
 __all__ = [
     "DEFAULT_NOISE",
@@ -107,25 +108,12 @@ Fault = HeadingJump | HeadingDrift | Slip | ScaleError
 
 def relative_motions(poses: FloatArray) -> FloatArray:
     """``(N - 1, 3)`` steps ``z_k = x_k^-1 x_{k+1}`` between consecutive poses (N, 3)."""
-    p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-    a, b = p[:-1], p[1:]
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-    dth = np.mod(b[:, 2] - a[:, 2] + math.pi, 2 * math.pi) - math.pi
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, dth], axis=1)
+    return chain_steps(np.asarray(poses, dtype=np.float64).reshape(-1, 3))
 
 
 def compose_motions(start: FloatArray, motions: FloatArray) -> FloatArray:
     """``(M + 1, 3)`` poses from ``start`` (3,) composed with the steps ``motions`` (M, 3)."""
-    z = np.asarray(motions, dtype=np.float64).reshape(-1, 3)
-    x0 = np.asarray(start, dtype=np.float64).reshape(3)
-    theta = x0[2] + np.concatenate([[0.0], np.cumsum(z[:, 2])])
-    c, s = np.cos(theta[:-1]), np.sin(theta[:-1])
-    step = np.stack([c * z[:, 0] - s * z[:, 1], s * z[:, 0] + c * z[:, 1]], axis=1)
-    xy = x0[:2] + np.concatenate([np.zeros((1, 2)), np.cumsum(step, axis=0)])
-    wrapped = np.mod(theta + math.pi, 2 * math.pi) - math.pi
-    wrapped = np.where(wrapped == -math.pi, math.pi, wrapped)
-    return np.column_stack([xy, wrapped])
+    return integrate(start, motions)
 
 
 def odometry(

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.errors import InputError
-from hitl_slam.geometry import principal_axes, to_world
+from hitl_slam.geometry import fit_line, principal_axes, to_world
 from hitl_slam.map import Map
 from hitl_slam.sim import worlds
 from hitl_slam.sim.lidar import Lidar
@@ -74,11 +74,12 @@ class WallFit:
 
 def fit_points(points: FloatArray) -> WallFit:
     """The TLS line through ``points`` (K >= 2, 2)."""
-    centre, normal, direction = principal_axes(points)
+    centre, _, direction = principal_axes(points)
     proj = (points - centre) @ direction
+    phi, rho = fit_line(points)
     return WallFit(
-        phi=float(math.atan2(normal[1], normal[0])),
-        rho=float(normal @ centre),
+        phi=phi,
+        rho=rho,
         centre=(float(centre[0]), float(centre[1])),
         count=int(points.shape[0]),
         extent=float(proj.max() - proj.min()),

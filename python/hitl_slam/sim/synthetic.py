@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.errors import InputError
+from hitl_slam.geometry import between, compose, integrate, wrap
 from hitl_slam.graph import PoseGraph
 
 __all__ = ["chain_with_loops", "manhattan_world"]
@@ -282,50 +283,23 @@ def _assemble(
 
     chain = np.arange(num_poses - 1, dtype=np.int64)
     edges = np.concatenate([np.stack([chain, chain + 1], axis=1), closures]).astype(np.int64)
-    t_i_j = _between(truth[edges[:, 0]], truth[edges[:, 1]])
+    t_i_j = between(truth[edges[:, 0]], truth[edges[:, 1]])
     sigmas = np.array([sigma_xy, sigma_xy, sigma_theta])
     if add_noise:
         noise = rng.standard_normal(t_i_j.shape) * sigmas
-        measurements = _compose(t_i_j, _exp(noise))
+        measurements = compose(t_i_j, _exp(noise))
     else:
         measurements = t_i_j
     information = np.broadcast_to(np.diag(1.0 / sigmas**2), (edges.shape[0], 3, 3)).copy()
 
     graph = PoseGraph(
-        poses=_integrate(truth[0], measurements[: num_poses - 1]),
+        poses=integrate(truth[0], measurements[: num_poses - 1]),
         edges=edges,
         measurements=measurements,
         information=information,
         anchor=0,
     )
     return graph, truth
-
-
-def _wrap(theta: FloatArray) -> FloatArray:
-    """Angles wrapped to (-pi, pi]."""
-    wrapped: FloatArray = math.pi - np.mod(math.pi - theta, 2.0 * math.pi)
-    return wrapped
-
-
-def _compose(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Row-wise ``a * b`` for ``(M, 3)`` poses."""
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    out = np.empty_like(a)
-    out[:, 0] = a[:, 0] + c * b[:, 0] - s * b[:, 1]
-    out[:, 1] = a[:, 1] + s * b[:, 0] + c * b[:, 1]
-    out[:, 2] = _wrap(a[:, 2] + b[:, 2])
-    return out
-
-
-def _between(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Row-wise ``a^-1 * b``: pose b in the frame of pose a."""
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-    out = np.empty_like(a)
-    out[:, 0] = c * dx + s * dy
-    out[:, 1] = -s * dx + c * dy
-    out[:, 2] = _wrap(b[:, 2] - a[:, 2])
-    return out
 
 
 def _exp(v: FloatArray) -> FloatArray:
@@ -339,18 +313,5 @@ def _exp(v: FloatArray) -> FloatArray:
     out = np.empty_like(v)
     out[:, 0] = a * v[:, 0] - b * v[:, 1]
     out[:, 1] = b * v[:, 0] + a * v[:, 1]
-    out[:, 2] = _wrap(w)
+    out[:, 2] = wrap(w)
     return out
-
-
-def _integrate(start: FloatArray, steps: FloatArray) -> FloatArray:
-    """Poses ``x_0 = start``, ``x_{k+1} = x_k * steps[k]``, vectorized with cumulative sums."""
-    theta = start[2] + np.concatenate([[0.0], np.cumsum(steps[:, 2])])
-    c, s = np.cos(theta[:-1]), np.sin(theta[:-1])
-    dx = c * steps[:, 0] - s * steps[:, 1]
-    dy = s * steps[:, 0] + c * steps[:, 1]
-    poses = np.empty((steps.shape[0] + 1, 3), dtype=np.float64)
-    poses[:, 0] = start[0] + np.concatenate([[0.0], np.cumsum(dx)])
-    poses[:, 1] = start[1] + np.concatenate([[0.0], np.cumsum(dy)])
-    poses[:, 2] = _wrap(theta)
-    return poses

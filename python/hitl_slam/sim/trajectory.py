@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.errors import InputError
+from hitl_slam.geometry import wrap
 
 __all__ = ["travel_distance", "waypoint_trajectory"]
 
@@ -74,7 +75,7 @@ def waypoint_trajectory(
         tangent = 0.0
         turn = 0.0
         if i + 1 < legs.shape[0]:
-            turn = math.remainder(headings[i + 1] - headings[i], 2 * math.pi)
+            turn = wrap(float(headings[i + 1] - headings[i]))
             if abs(turn) > math.pi - 1e-6:
                 raise InputError(f"the route reverses at waypoint {i + 1}; add a waypoint to turn")
             if abs(turn) > 1e-12 and turn_radius > 0:
@@ -110,9 +111,7 @@ def waypoint_trajectory(
     safe = np.where(curved, kap, 1.0)
     dx = np.where(curved, (np.sin(th) - np.sin(th0)) / safe, u * np.cos(th0))
     dy = np.where(curved, (np.cos(th0) - np.cos(th)) / safe, u * np.sin(th0))
-    theta = np.mod(th + math.pi, 2 * math.pi) - math.pi
-    theta = np.where(theta == -math.pi, math.pi, theta)
-    return np.column_stack([p0[:, 0] + dx, p0[:, 1] + dy, theta])
+    return np.column_stack([p0[:, 0] + dx, p0[:, 1] + dy, wrap(th)])
 
 
 def travel_distance(poses: FloatArray) -> float:

@@ -11,6 +11,7 @@ import { installHooks } from "./hooks.js";
 import { attachInput } from "./interaction.js";
 import { ALIGNED_LOOPS, loopLines, pickLoop, placeLoops } from "./loops.js";
 import { overlay } from "./overlay.js";
+import { placeIndexed } from "./se2.js";
 import { Ui } from "./ui.js";
 import { MapView } from "./view.js";
 
@@ -287,19 +288,7 @@ class App {
     if (p && p.accepted && this.scans && this.poses) {
       const { points } = this.scans;
       const poses = this.poses;
-      const gather = (b64) => {
-        const idx = api.decodeIndices(b64);
-        const out = new Float32Array(2 * idx.length);
-        let k = 0;
-        for (const i of idx) {
-          if (2 * i + 1 >= points.length) continue;
-          const q = 3 * this.owner[i];
-          const [c, s] = [Math.cos(poses[q + 2]), Math.sin(poses[q + 2])];
-          out[k++] = poses[q] + c * points[2 * i] - s * points[2 * i + 1];
-          out[k++] = poses[q + 1] + s * points[2 * i] + c * points[2 * i + 1];
-        }
-        return out.subarray(0, k);
-      };
+      const gather = (b64) => placeIndexed(points, this.owner, poses, api.decodeIndices(b64));
       a = gather(p.s_a);
       b = gather(p.s_b);
     }

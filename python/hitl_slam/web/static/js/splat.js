@@ -6,6 +6,7 @@
 // this is some 20 times faster than GL_POINTS, whose per-vertex cost there is about 0.6 us; with
 // a GPU the view draws GL_POINTS instead (view.js picks).
 
+import { frames } from "./se2.js";
 import { SPLAT_FS, SPLAT_VS, bindExactTexture, compile } from "./shaders.js";
 
 const TILE = 32; // [device px] only tiles with points are shaded
@@ -53,15 +54,7 @@ export class PointSplatter {
 
   /** A new map version: the poses (x, y, theta per pose), whose frames place the scans. */
   setPoses(poses) {
-    const n = poses.length / 3;
-    const frames = new Float64Array(4 * n); // x, y, cos, sin
-    for (let p = 0; p < n; p++) {
-      frames[4 * p] = poses[3 * p];
-      frames[4 * p + 1] = poses[3 * p + 1];
-      frames[4 * p + 2] = Math.cos(poses[3 * p + 2]);
-      frames[4 * p + 3] = Math.sin(poses[3 * p + 2]);
-    }
-    this.frames = frames;
+    this.frames = frames(poses); // x, y, cos, sin per pose
   }
 
   _resize(w, h) {

@@ -12,6 +12,7 @@
 // overrides the choice. A WebGL without float textures in the vertex shader places the points on
 // the CPU for the "gpu" path (`placedBy` says which).
 
+import { frames, placePoints } from "./se2.js";
 import { PointSplatter } from "./splat.js";
 import {
   ARROW_VS,
@@ -55,25 +56,6 @@ const LINE_CORNERS = [
 const LINE_FLOATS = 12; // p0 (2), p1 (2), corner (2), colour (4), style (2)
 const ARROW_FLOATS = 6; // pose (x, y, theta, in-a-correction flag), corner (2)
 const SOFTWARE = /SwiftShader|llvmpipe|softpipe|Software|Basic Render/i;
-
-/**
- * World positions (x, y float32 pairs) of the robot-frame `points` of each scan (pose i's are
- * points[2 offsets[i] .. 2 offsets[i + 1]]) under `poses` (N*3).
- */
-export function placePoints(points, offsets, poses) {
-  const out = new Float32Array(points.length);
-  for (let p = 0; p + 1 < offsets.length; p++) {
-    const x = poses[3 * p];
-    const y = poses[3 * p + 1];
-    const c = Math.cos(poses[3 * p + 2]);
-    const s = Math.sin(poses[3 * p + 2]);
-    for (let i = 2 * offsets[p]; i < 2 * offsets[p + 1]; i += 2) {
-      out[i] = x + c * points[i] - s * points[i + 1];
-      out[i + 1] = y + s * points[i] + c * points[i + 1];
-    }
-  }
-  return out;
-}
 
 /** The renderer string of this browser's WebGL, from a throwaway context. */
 function probeRenderer() {
@@ -203,13 +185,7 @@ export class MapView {
     const width = Math.min(n, 2048);
     const height = Math.ceil(n / width);
     const texels = new Float32Array(4 * width * height);
-    for (let i = 0; 3 * i < poses.length; i++) {
-      const t = poses[3 * i + 2];
-      texels[4 * i] = poses[3 * i];
-      texels[4 * i + 1] = poses[3 * i + 1];
-      texels[4 * i + 2] = Math.cos(t);
-      texels[4 * i + 3] = Math.sin(t);
-    }
+    texels.set(frames(poses)); // x, y, cos, sin per pose
     gl.activeTexture(gl.TEXTURE1);
     bindExactTexture(gl, this.poseTexture);
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 4);
