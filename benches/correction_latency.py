@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from hitl_slam import pipeline
 from hitl_slam.config import DEFAULT
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.corrections import Correction, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected
 
 try:
@@ -75,9 +75,7 @@ HELD: dict[int, Any] = {}
 a session's do (builds from before workspaces keep their engines themselves)."""
 
 
-def _apply(
-    m: Map, poses: FloatArray, drawn: DrawnCorrection, active: Sequence[Interpretation]
-) -> Any:
+def _apply(m: Map, poses: FloatArray, drawn: Correction, active: Sequence[Interpretation]) -> Any:
     """``apply_correction`` as a session calls it: with the map's workspace."""
     if Workspace is None:
         return apply_correction(m, poses, drawn, active, DEFAULT)
@@ -99,18 +97,18 @@ def _forget_analyses() -> None:
 TIMERS: dict[str, Callable[[], object]] = {}
 """Per case, the timed correction as a call, for ``--serve``."""
 
-STATES: dict[str, tuple[FloatArray, list[Interpretation], DrawnCorrection]] = {}
-LOADED: dict[str, tuple[FloatArray, list[Interpretation], DrawnCorrection]] = {}
+STATES: dict[str, tuple[FloatArray, list[Interpretation], Correction]] = {}
+LOADED: dict[str, tuple[FloatArray, list[Interpretation], Correction]] = {}
 """The state each case timed its correction on (poses, earlier corrections, the drawing), kept
 for ``--save-state`` so that another build can be timed on exactly the same work."""
 
 
 def _build_history(
     m: Map,
-    candidates: Sequence[Callable[[FloatArray], DrawnCorrection]],
+    candidates: Sequence[Callable[[FloatArray], Correction]],
     wanted: int,
     log: Callable[[str], None],
-) -> tuple[FloatArray, list[Interpretation], list[Callable[[FloatArray], DrawnCorrection]]]:
+) -> tuple[FloatArray, list[Interpretation], list[Callable[[FloatArray], Correction]]]:
     """Applies drawings one at a time on the current map until ``wanted`` were accepted; returns
     the map, the accepted interpretations and the drawings not used yet."""
     poses = m.poses.copy()
@@ -144,7 +142,7 @@ def corridor_case(repeats: int, log: Callable[[str], None]) -> dict[str, object]
         OUTER_TOP: (135, 190),
         OUTER_LEFT: (200, 250),
     }
-    candidates: list[Callable[[FloatArray], DrawnCorrection]] = []
+    candidates: list[Callable[[FloatArray], Correction]] = []
     for k in range(1, 12):
         for wall in walls:
             lo, hi = first_visit[wall]
@@ -153,10 +151,10 @@ def corridor_case(repeats: int, log: Callable[[str], None]) -> dict[str, object]
 
             def draw(
                 poses: FloatArray, wall: int = wall, lo: int = lo, hi: int = hi, k: int = k
-            ) -> DrawnCorrection:
+            ) -> Correction:
                 a = drawn_segment(world, poses, wall, (lo, hi), rng)
                 b = drawn_segment(world, poses, wall, (lo + k * lap, hi + k * lap), rng)
-                return DrawnCorrection.make(a, b, Mode.COLOCATION)
+                return Correction.make(a, b, Mode.COLOCATION)
 
             candidates.append(draw)
     log(f"corridor: {m.num_poses} poses, {m.num_points} points")

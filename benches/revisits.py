@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from hitl_slam.corrections import DrawnCorrection, Mode
+from hitl_slam.corrections import Correction, Mode
 from hitl_slam.geometry import principal_axes
 from hitl_slam.map import Map
 
@@ -39,9 +39,7 @@ class WallDrawer:
         self.true_world = m.world_points(truth)
         self.owner = m.pose_of_point()
 
-    def draw(
-        self, poses: FloatArray, i: int, j: int, *, only_if_wrong: bool = True
-    ) -> DrawnCorrection:
+    def draw(self, poses: FloatArray, i: int, j: int, *, only_if_wrong: bool = True) -> Correction:
         """The colocation of that wall. Raises ValueError when scan i sees no wall, a visit
         barely shows it, or (``only_if_wrong``: a person corrects only what looks wrong) the two
         already meet within 10 cm."""
@@ -79,4 +77,4 @@ class WallDrawer:
         a, b = seg(i - 3, i + 4), seg(j - 3, j + 4)
         if only_if_wrong and np.hypot(*np.subtract(np.mean(a, 0), np.mean(b, 0))) < 0.1:
             raise ValueError("already consistent here")
-        return DrawnCorrection.make(a, b, Mode.COLOCATION)
+        return Correction.make(a, b, Mode.COLOCATION)

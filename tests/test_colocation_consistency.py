@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from hitl_slam.config import DEFAULT
-from hitl_slam.corrections import DrawnCorrection, Mode
+from hitl_slam.corrections import Correction, Mode
 from hitl_slam.metrics import ate, inconsistency
 from hitl_slam.pipeline import apply_correction
 from hitl_slam.sim import lost_poses_room
@@ -60,7 +60,7 @@ def test_a_same_stretch_colocation_on_a_loose_chain_is_kept_on_one_line(seed: in
     m = scenario.map
     poses = m.poses
     a, b = _same_stretch_apart(scenario)
-    drawn = DrawnCorrection.make(
+    drawn = Correction.make(
         _drawn_on(scenario, poses, a), _drawn_on(scenario, poses, b), Mode.COLOCATION
     )
     ate0 = ate(poses, scenario.truth, align=True)
@@ -100,7 +100,7 @@ def test_a_colocation_the_scans_agree_with_stays_a_colocation() -> None:
         (a0, a1), (b0, b1) = person._extent(a), person._extent(b)
         pairs.append((max(abs(a0 - b0), abs(a1 - b1)), a, b))
     _, a, b = min(pairs, key=lambda t: t[0])
-    drawn = DrawnCorrection.make(
+    drawn = Correction.make(
         _drawn_on(scenario, truth, a), _drawn_on(scenario, truth, b), Mode.COLOCATION
     )
     got = apply_correction(m, truth, drawn, (), DEFAULT)

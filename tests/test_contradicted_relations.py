@@ -19,7 +19,7 @@ import pytest
 
 from copies_world import WALL_A, WALL_B, CopiesWorld, careful_drawing, copies_world
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.corrections import Correction, Interpretation, Mode
 from hitl_slam.odometry_check import checked_map
 from hitl_slam.pipeline import CorrectionResult, apply_correction, joint_kernels, solve_all
 
@@ -39,7 +39,7 @@ def _lap_error(w: CopiesWorld, poses: np.ndarray) -> tuple[float, float]:
     return dy, math.degrees(dth)
 
 
-def _interpret(w: CopiesWorld, drawn: DrawnCorrection, config: Config) -> Interpretation:
+def _interpret(w: CopiesWorld, drawn: Correction, config: Config) -> Interpretation:
     return apply_correction(w.map, w.map.poses, drawn, (), config).interpretation
 
 
@@ -62,12 +62,12 @@ def test_a_false_statement_yields_to_the_true_ones_that_contradict_it(seed: int)
     turn = math.radians(rng.uniform(1.0, 3.0)) * rng.choice([-1.0, 1.0])
     w = copies_world([(0.0, 0.0, 0.0), (0.0, offset, turn)], seed)
 
-    def draw(poses: np.ndarray, first: Wall, second: Wall) -> DrawnCorrection:
+    def draw(poses: np.ndarray, first: Wall, second: Wall) -> Correction:
         # `first` as lap 0 shows it, `second` as lap 1 does, 0-5 cm beside each copy.
         c0, c1 = _shown(w, first, 0, poses), _shown(w, second, 1, poses)
         a = careful_drawing(c0, rng, offset=(0.0, 0.05))
         b = careful_drawing(c1, rng, offset=(0.0, 0.05))
-        return DrawnCorrection.make(a, b, Mode.COLLINEAR)
+        return Correction.make(a, b, Mode.COLLINEAR)
 
     # False: "the first lap's wall A and the second lap's wall B are one line" (3 m apart), then
     # the two true statements, each drawn on the map as it stands.
@@ -109,12 +109,12 @@ def test_true_corrections_that_agree_are_unchanged_by_the_kernel() -> None:
     w = copies_world([(0.0, 0.0, 0.0), (0.0, 0.4, math.radians(2.0))], 7)
     a0, a1 = w.copy_of(WALL_A, 0), w.copy_of(WALL_A, 1)
     b0, b1 = w.copy_of(WALL_B, 0), w.copy_of(WALL_B, 1)
-    first = DrawnCorrection.make(
+    first = Correction.make(
         careful_drawing(a0, rng, offset=(0.0, 0.05), others=(b0, b1)),
         careful_drawing(a1, rng, offset=(0.0, 0.05), others=(b0, b1)),
         Mode.COLLINEAR,
     )
-    second = DrawnCorrection.make(
+    second = Correction.make(
         careful_drawing(b0, rng, offset=(0.0, 0.05), others=(a0, a1)),
         careful_drawing(b1, rng, offset=(0.0, 0.05), others=(a0, a1)),
         Mode.COLLINEAR,
@@ -147,8 +147,8 @@ def _false_after_true(
     a0, a1 = w.copy_of(WALL_A, 0), w.copy_of(WALL_A, 1)
     b0, b1 = w.copy_of(WALL_B, 0), w.copy_of(WALL_B, 1)
 
-    def drawing(c0: np.ndarray, c1: np.ndarray, others: tuple[np.ndarray, ...]) -> DrawnCorrection:
-        return DrawnCorrection.make(
+    def drawing(c0: np.ndarray, c1: np.ndarray, others: tuple[np.ndarray, ...]) -> Correction:
+        return Correction.make(
             careful_drawing(c0, rng, offset=(0.0, 0.05), others=others),
             careful_drawing(c1, rng, offset=(0.0, 0.05), others=others),
             Mode.COLLINEAR,

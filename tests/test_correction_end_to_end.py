@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.corrections import Correction, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected
 from hitl_slam.geometry import fit_line
 from hitl_slam.interpret import interpret
@@ -51,13 +51,13 @@ def world() -> World:
     return corridor_loop(seed=1)
 
 
-def _draw(world: World, mode: Mode, seed: int = 0) -> DrawnCorrection:
+def _draw(world: World, mode: Mode, seed: int = 0) -> Correction:
     rng = np.random.default_rng(seed)
     (wa, ra, ta), (wb, rb, tb) = DRAWINGS[mode]
     poses = world.map.poses
     a = drawn_segment(world, poses, wa, ra, rng, noise=0.05, along=ta)
     b = drawn_segment(world, poses, wb, rb, rng, noise=0.05, along=tb)
-    return DrawnCorrection.make(a, b, mode)
+    return Correction.make(a, b, mode)
 
 
 def relation_error(m: Map, poses: FloatArray, h: Interpretation) -> tuple[float, float]:
@@ -99,9 +99,9 @@ def test_lines_are_undirected(world: World, mode: Mode) -> None:
     drawn = _draw(world, mode, seed=3)
     base = apply_correction(m, m.poses, drawn, (), DEFAULT)
     flips = [
-        DrawnCorrection(mode, (drawn.a[1], drawn.a[0]), drawn.b),
-        DrawnCorrection(mode, drawn.a, (drawn.b[1], drawn.b[0])),
-        DrawnCorrection(mode, (drawn.a[1], drawn.a[0]), (drawn.b[1], drawn.b[0])),
+        Correction(mode, (drawn.a[1], drawn.a[0]), drawn.b),
+        Correction(mode, drawn.a, (drawn.b[1], drawn.b[0])),
+        Correction(mode, (drawn.a[1], drawn.a[0]), (drawn.b[1], drawn.b[0])),
     ]
     for flipped in flips:
         other = apply_correction(m, m.poses, flipped, (), DEFAULT)
@@ -119,7 +119,7 @@ def test_newest_of_two_drawn_corrections_changes_the_map(world: World) -> None:
     a = drawn_segment(world, first.poses, OUTER_BOTTOM, (0, 60), rng, along=(0.3, 0.7))
     b = drawn_segment(world, first.poses, OUTER_BOTTOM, (265, 325), rng, along=(0.3, 0.7))
     second = apply_correction(
-        m, first.poses, DrawnCorrection.make(a, b, Mode.COLOCATION), [first.interpretation], DEFAULT
+        m, first.poses, Correction.make(a, b, Mode.COLOCATION), [first.interpretation], DEFAULT
     )
     assert np.abs(second.poses[:, :2] - first.poses[:, :2]).max() > 0.05
     assert relation_error(m, second.poses, second.interpretation)[1] < 0.02
@@ -161,7 +161,7 @@ def test_one_correction_crosses_into_the_core_once(world: World) -> None:
     rng = np.random.default_rng(5)
     a = drawn_segment(world, first.poses, OUTER_BOTTOM, (0, 60), rng, along=(0.3, 0.7))
     b = drawn_segment(world, first.poses, OUTER_BOTTOM, (265, 325), rng, along=(0.3, 0.7))
-    drawn = DrawnCorrection.make(a, b, Mode.COLOCATION)
+    drawn = Correction.make(a, b, Mode.COLOCATION)
     calls = _core_calls(
         lambda: apply_correction(
             m, first.poses, drawn, [first.interpretation], DEFAULT, workspace=held
@@ -169,7 +169,7 @@ def test_one_correction_crosses_into_the_core_once(world: World) -> None:
     )
     assert calls == ["CorrectionEngine.apply"], calls
     # A refused drawing too: one call, which refuses.
-    far = DrawnCorrection.make([[50.0, 50.0], [52.0, 50.0]], b, Mode.COLOCATION)
+    far = Correction.make([[50.0, 50.0], [52.0, 50.0]], b, Mode.COLOCATION)
 
     def refused() -> None:
         with pytest.raises(CorrectionRejected):
@@ -221,7 +221,7 @@ def test_nan_coordinates_are_refused(world: World) -> None:
         apply_correction(
             m,
             m.poses,
-            DrawnCorrection(Mode.PARALLEL, ((0.0, 0.0), (math.nan, 1.0)), ((1, 1), (2, 2))),
+            Correction(Mode.PARALLEL, ((0.0, 0.0), (math.nan, 1.0)), ((1, 1), (2, 2))),
             (),
         )
 

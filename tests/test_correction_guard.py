@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from copies_world import WALL_A, CopiesWorld, careful_drawing, copies_world
 from hitl_slam.config import DEFAULT
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.corrections import Correction, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected
 from hitl_slam.evaluation import _ate
 from hitl_slam.pipeline import apply_correction
@@ -65,7 +65,7 @@ def test_heading_jump_loop_repaired_by_colocations_never_gets_worse(seed: int) -
     assert angle[-1] < 0.5, angle
 
 
-def _long_colocation(seed: int) -> tuple[CopiesWorld, DrawnCorrection]:
+def _long_colocation(seed: int) -> tuple[CopiesWorld, Correction]:
     """Lap 1 turned 5 degrees: the copies diverge from ~0 to ~0.6 m over the 14 m wall; the
     person draws "same wall" over the first 20-75% of copy a and the 35-95% of copy b."""
     rng = np.random.default_rng(500 + seed)
@@ -73,7 +73,7 @@ def _long_colocation(seed: int) -> tuple[CopiesWorld, DrawnCorrection]:
     c0, c1 = w.copy_of(WALL_A, 0), w.copy_of(WALL_A, 1)
     a = careful_drawing(c0, rng, offset=(0.0, 0.05), span=(0.1, 0.6))
     b = careful_drawing(c1, rng, offset=(0.0, 0.05), span=(0.35, 0.95))
-    return w, DrawnCorrection.make(a, b, Mode.COLOCATION)
+    return w, Correction.make(a, b, Mode.COLOCATION)
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -151,7 +151,7 @@ def test_a_result_beyond_the_odometry_noise_is_tried_again_or_refused(seed: int)
         pa = scenario.wall_points(poses, pairs[k].i, (0, n // 3))
         pb = scenario.wall_points(poses, pairs[k].j, (2 * n // 3, n))
         if len(pa) >= 150 and len(pb) >= 150:
-            drawn = DrawnCorrection.make(_segment_over(pa), _segment_over(pb), Mode.PERPENDICULAR)
+            drawn = Correction.make(_segment_over(pa), _segment_over(pb), Mode.PERPENDICULAR)
             break
     assert drawn is not None
     h = interpret(m, poses, drawn)

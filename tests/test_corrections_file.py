@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hitl_slam.corrections import DrawnCorrection, Mode
+from hitl_slam.corrections import Correction, Mode
 from hitl_slam.corrections_file import (
     Apply,
     Redo,
@@ -55,7 +55,7 @@ def test_reads_corrections_undo_redo_with_line_numbers(tmp_path: Path) -> None:
     first, second = steps[0], steps[1]
     assert isinstance(first, Apply)
     assert isinstance(second, Apply)
-    assert first.drawn == DrawnCorrection.make(A, B, Mode.COLLINEAR)
+    assert first.drawn == Correction.make(A, B, Mode.COLLINEAR)
     assert first.drawn.sigma_h is None
     assert second.drawn.mode is Mode.COLOCATION
     assert second.drawn.sigma_h == 0.08
@@ -141,8 +141,8 @@ def test_not_utf8_missing_and_directory(tmp_path: Path) -> None:
 
 def test_write_read_round_trip_and_atomic_replace(tmp_path: Path) -> None:
     steps: list[Step] = [
-        Apply(DrawnCorrection.make(A, B, "collinear")),
-        Apply(DrawnCorrection.make([[0.1, 0.2], [0.3, 1e-300]], B, "perpendicular", 0.07)),
+        Apply(Correction.make(A, B, "collinear")),
+        Apply(Correction.make([[0.1, 0.2], [0.3, 1e-300]], B, "perpendicular", 0.07)),
         Undo(),
         Redo(),
     ]
@@ -162,7 +162,7 @@ def test_write_read_round_trip_and_atomic_replace(tmp_path: Path) -> None:
 
 
 def test_write_accepts_bare_drawn_corrections(tmp_path: Path) -> None:
-    drawn = DrawnCorrection.make(A, B, "parallel")
+    drawn = Correction.make(A, B, "parallel")
     path = tmp_path / "c.jsonl"
     write_corrections(path, [drawn, drawn])
     assert [s.drawn for s in read_corrections(path) if isinstance(s, Apply)] == [drawn, drawn]
@@ -174,7 +174,7 @@ def test_write_to_missing_directory_is_an_input_error(tmp_path: Path) -> None:
 
 
 def test_write_refuses_what_would_not_read_back(tmp_path: Path) -> None:
-    far = DrawnCorrection.make([[0.0, 0.0], [2e9, 0.0]], B, "collinear")
+    far = Correction.make([[0.0, 0.0], [2e9, 0.0]], B, "collinear")
     path = tmp_path / "c.jsonl"
     with pytest.raises(InputError, match=r"step 2 .*1e9") as info:
         write_corrections(path, [Undo(), Apply(far)])
@@ -191,7 +191,7 @@ segment = st.tuples(st.tuples(coordinate, coordinate), st.tuples(coordinate, coo
     st.lists(
         st.one_of(
             st.builds(
-                DrawnCorrection.make,
+                Correction.make,
                 segment,
                 segment,
                 st.sampled_from(list(Mode)),
@@ -203,7 +203,7 @@ segment = st.tuples(st.tuples(coordinate, coordinate), st.tuples(coordinate, coo
         max_size=8,
     )
 )
-def test_round_trip_is_exact(items: list[DrawnCorrection | str]) -> None:
+def test_round_trip_is_exact(items: list[Correction | str]) -> None:
     import tempfile
 
     steps: list[Step] = [

@@ -20,7 +20,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from fuzz_support import FUZZ_SETTINGS, assert_finite, byte_edits, check_reader, number_tokens
-from hitl_slam.corrections import DrawnCorrection
+from hitl_slam.corrections import Correction
 from hitl_slam.journal import SCHEMA_VERSION
 from hitl_slam.map import Map
 from hitl_slam.session import Session
@@ -39,8 +39,8 @@ def seeds() -> tuple[bytes, ...]:
         out.append(fresh.read_bytes())
         used = Path(directory) / "used.hitl"
         with Session.new(tiny_map(), used, applier=fake_applier) as session:
-            session.apply(DrawnCorrection.make([[1, 0], [3, 0]], [[5, 0.5], [8, 0.6]], "collinear"))
-            session.apply(DrawnCorrection.make([[2, 1], [4, 1]], [[6, 1.5], [9, 1.6]], "parallel"))
+            session.apply(Correction.make([[1, 0], [3, 0]], [[5, 0.5], [8, 0.6]], "collinear"))
+            session.apply(Correction.make([[2, 1], [4, 1]], [[6, 1.5], [9, 1.6]], "parallel"))
             session.undo()
         out.append(used.read_bytes())
     return tuple(out)

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode, Segment
+from hitl_slam.corrections import Correction, Interpretation, Mode, Segment
 from hitl_slam.errors import CorrectionRejected, InputError
 from hitl_slam.interpret import interpret
 from hitl_slam.map import Map
@@ -138,7 +138,7 @@ def _run(
     w: World, a: Segment, b: Segment, mode: Mode = Mode.COLLINEAR, **config: float
 ) -> Interpretation:
     cfg = DEFAULT.replace(**config) if config else DEFAULT
-    return interpret(w.map, w.map.poses, DrawnCorrection.make(a, b, mode), cfg)
+    return interpret(w.map, w.map.poses, Correction.make(a, b, mode), cfg)
 
 
 def _global(w: World, rows: NDArray[np.int64]) -> NDArray[np.int64]:
@@ -310,10 +310,10 @@ def test_zero_length_segment_is_rejected(world: World) -> None:
 
 
 def test_nan_coordinates_are_rejected(world: World) -> None:
-    bad = DrawnCorrection(Mode.COLOCATION, ((math.nan, 0.0), (7.0, 0.0)), A_FIRST)
+    bad = Correction(Mode.COLOCATION, ((math.nan, 0.0), (7.0, 0.0)), A_FIRST)
     with pytest.raises(CorrectionRejected, match="segment a has a non-finite coordinate"):
         interpret(world.map, world.map.poses, bad)
-    bad = DrawnCorrection(Mode.COLOCATION, A_FIRST, ((3.0, 0.0), (math.inf, 0.0)))
+    bad = Correction(Mode.COLOCATION, A_FIRST, ((3.0, 0.0), (math.inf, 0.0)))
     with pytest.raises(CorrectionRejected, match="segment b has a non-finite coordinate"):
         interpret(world.map, world.map.poses, bad)
 
@@ -357,7 +357,7 @@ def _alternating(n: int = 40) -> Map:
 
 def test_interleaved_sets_are_rejected_naming_both_ranges() -> None:
     m = _alternating()
-    drawn = DrawnCorrection.make(A_FIRST, ((3.0, 3.0), (7.0, 3.0)), Mode.PARALLEL)
+    drawn = Correction.make(A_FIRST, ((3.0, 3.0), (7.0, 3.0)), Mode.PARALLEL)
     with pytest.raises(CorrectionRejected, match="interleave") as info:
         interpret(m, m.poses, drawn)
     msg = str(info.value)
@@ -372,7 +372,7 @@ def test_interleaved_sets_are_rejected_naming_both_ranges() -> None:
 
 
 def test_bad_poses_and_config_are_input_errors(world: World) -> None:
-    drawn = DrawnCorrection.make(A_FIRST, A_FIRST, Mode.COLLINEAR)
+    drawn = Correction.make(A_FIRST, A_FIRST, Mode.COLLINEAR)
     with pytest.raises(InputError, match="shape"):
         interpret(world.map, world.map.poses[:-1], drawn)
     poses = world.map.poses.copy()
@@ -576,7 +576,7 @@ def test_an_absurd_drawing_uncertainty_is_an_input_error_not_a_crash(
     a = _sloppy(A_FIRST, rng, 1.5, 0.04)
     b = _sloppy(world.displayed_segment(A_FIRST, world.first_wrong + 1), rng, -1.0, 0.04)
     before = world.map.poses.copy()
-    drawn = DrawnCorrection.make(a, b, Mode.COLLINEAR, sigma_h=sigma_h)
+    drawn = Correction.make(a, b, Mode.COLLINEAR, sigma_h=sigma_h)
     with pytest.raises((InputError, CorrectionRejected), match=r"too wide|sigma_h"):
         interpret(world.map, world.map.poses, drawn, DEFAULT)
     assert np.array_equal(world.map.poses, before)

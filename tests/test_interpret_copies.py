@@ -12,14 +12,14 @@ import pytest
 
 from copies_world import WALL_A, WALL_B, CopiesWorld, careful_drawing, copies_world
 from hitl_slam.config import DEFAULT
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.corrections import Correction, Interpretation, Mode
 from hitl_slam.interpret import interpret
 
 SEEDS = range(int(__import__("os").environ.get("COPIES_SEEDS", "6")))
 
 
 def _interpret(w: CopiesWorld, a: object, b: object, mode: Mode = Mode.COLLINEAR) -> Interpretation:
-    return interpret(w.map, w.map.poses, DrawnCorrection.make(a, b, mode), DEFAULT)  # type: ignore[arg-type]
+    return interpret(w.map, w.map.poses, Correction.make(a, b, mode), DEFAULT)  # type: ignore[arg-type]
 
 
 def _laps_of(w: CopiesWorld, h: Interpretation) -> tuple[set[int], set[int]]:
@@ -103,7 +103,7 @@ def test_search_off_is_the_papers_em_from_the_drawing() -> None:
     w = copies_world([(0.0, 0.0, 0.0), (0.0, 0.55, 0.0)], 3)
     a = careful_drawing(w.copy_of(WALL_A, 0), rng, offset=(0.18, 0.18), endpoint_noise=0.0)
     b = careful_drawing(w.copy_of(WALL_A, 1), rng, offset=(0.18, 0.18), endpoint_noise=0.0)
-    drawn = DrawnCorrection.make(a, b, Mode.COLLINEAR)
+    drawn = Correction.make(a, b, Mode.COLLINEAR)
     h = interpret(w.map, w.map.poses, drawn, DEFAULT)
     assert _laps_of(w, h) == ({0}, {1})
     off = DEFAULT.replace(search_band=0.0)

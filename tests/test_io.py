@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from hitl_slam.cli import main
 from hitl_slam.errors import InputError
 from hitl_slam.graph import PoseGraph
-from hitl_slam.io import GraphFormat, load_graph, load_graph_with_report, save_graph
+from hitl_slam.io import GraphFormat, load_graph, save_graph
 from hitl_slam.io.atomic import atomic_write_text, atomic_writer
 from hitl_slam.io.textfile import MAX_ANGLE, MAX_COORDINATE, MAX_INFORMATION
 
@@ -99,7 +99,9 @@ DATASETS = [
 @needs_shared
 @pytest.mark.parametrize(("name", "num_poses", "num_edges"), DATASETS)
 def test_public_g2o_files_load_with_their_counts(name: str, num_poses: int, num_edges: int) -> None:
-    graph, report = load_graph_with_report(POSE_GRAPHS / name)
+    graph = load_graph(POSE_GRAPHS / name)
+    report = graph.load_report
+    assert report is not None
     assert (graph.num_poses, graph.num_edges) == (num_poses, num_edges)
     assert report.format is GraphFormat.G2O
     assert report.skipped == {}
@@ -116,7 +118,9 @@ def test_public_g2o_files_load_with_their_counts(name: str, num_poses: int, num_
 
 @needs_shared
 def test_w100_merges_its_equiv_vertices() -> None:
-    graph, report = load_graph_with_report(POSE_GRAPHS / "w100.graph")
+    graph = load_graph(POSE_GRAPHS / "w100.graph")
+    report = graph.load_report
+    assert report is not None
     assert report.format is GraphFormat.TORO
     # 100 vertices and 300 edges in the file; EQUIV folds 21..40 and 41..60 onto 1..20.
     assert report.merged_vertices == 40
@@ -205,7 +209,9 @@ def test_fix_names_the_anchor_and_extra_fixed_vertices_are_reported(
 ) -> None:
     path = write(tmp_path, "fix.g2o", with_line(SQUARE_G2O, "FIX 2 3"))
     with caplog.at_level(logging.WARNING, logger="hitl_slam"):
-        graph, report = load_graph_with_report(path)
+        graph = load_graph(path)
+        report = graph.load_report
+        assert report is not None
     assert graph.anchor == 2
     assert report.skipped == {"FIX": 1}
     assert "FIX x1" in caplog.text
@@ -220,7 +226,9 @@ def test_other_tags_are_skipped_counted_and_logged(
     text = with_line(text, "EDGE_SE2_XY 0 9 1 1 1 0 1")
     path = write(tmp_path, "extra.g2o", text)
     with caplog.at_level(logging.WARNING, logger="hitl_slam"):
-        graph, report = load_graph_with_report(path)
+        graph = load_graph(path)
+        report = graph.load_report
+        assert report is not None
     assert graph.num_poses == 4
     assert report.skipped == {"PARAMS_SE2OFFSET": 1, "VERTEX_XY": 2, "EDGE_SE2_XY": 1}
     [record] = [r for r in caplog.records if r.name == "hitl_slam"]
@@ -238,7 +246,9 @@ def test_equiv_merges_onto_the_first_appearing_vertex(tmp_path: Path) -> None:
         "EDGE2 3 4 1 0 0 1 0 1 1 0 0\n"
         "EQUIV 3 1\nEQUIV 4 3\n"  # 4 ~ 3 ~ 1: both fold onto 1, which appears first
     )
-    graph, report = load_graph_with_report(write(tmp_path, "eq.graph", text))
+    graph = load_graph(write(tmp_path, "eq.graph", text))
+    report = graph.load_report
+    assert report is not None
     assert graph.vertex_ids is not None
     assert graph.vertex_ids.tolist() == [0, 1, 2]
     assert (report.merged_vertices, report.dropped_self_loops) == (2, 2)
@@ -265,7 +275,9 @@ def test_edges_without_vertices_chain_the_odometry(tmp_path: Path) -> None:
     for i, j in [(0, 1), (2, 1), (2, 3), (1, 4), (4, 5)]:  # 2 -> 1 runs backwards
         m = " ".join(map(repr, chain_measurement(truth[i], truth[j])))
         lines.append(f"EDGE_SE2 {ids[i]} {ids[j]} {m} {IDENTITY6}")
-    graph, report = load_graph_with_report(write(tmp_path, "e.g2o", "\n".join(lines[::-1])))
+    graph = load_graph(write(tmp_path, "e.g2o", "\n".join(lines[::-1])))
+    report = graph.load_report
+    assert report is not None
     assert report.poses_from_odometry
     assert graph.vertex_ids is not None
     assert graph.vertex_ids.tolist() == ids
@@ -284,7 +296,9 @@ def test_compressed_files_load(tmp_path: Path) -> None:
 def test_crlf_bom_and_content_sniffing(tmp_path: Path) -> None:
     path = tmp_path / "square.txt"
     path.write_bytes(b"\xef\xbb\xbf" + SQUARE_TORO.replace("\n", "\r\n").encode())
-    graph, report = load_graph_with_report(path)
+    graph = load_graph(path)
+    report = graph.load_report
+    assert report is not None
     assert report.format is GraphFormat.TORO
     assert graph.num_edges == 4
 

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from hitl_slam.config import Config
-from hitl_slam.corrections import DrawnCorrection, Interpretation
+from hitl_slam.corrections import Correction, Interpretation
 from hitl_slam.corrections_file import Apply, read_corrections
 from hitl_slam.errors import CorrectionRejected
 from hitl_slam.evaluation import LASER
@@ -48,7 +48,7 @@ def test_a_near_tie_that_contradicts_earlier_corrections_is_read_on_the_next_lin
     def apply(
         map: Map,
         poses: np.ndarray,
-        drawn: DrawnCorrection,
+        drawn: Correction,
         active: Sequence[Interpretation],
         config: Config,
     ) -> Any:

@@ -21,7 +21,7 @@ from matplotlib.quiver import Quiver
 from numpy.typing import NDArray
 
 from hitl_slam import plot
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.corrections import Correction, Interpretation, Mode
 from hitl_slam.errors import InputError
 from hitl_slam.map import Map
 from hitl_slam.sim.corridor import (
@@ -108,12 +108,12 @@ def corrections(world: World) -> list[Interpretation]:
 
 
 @pytest.fixture(scope="module")
-def drawn(world: World) -> DrawnCorrection:
+def drawn(world: World) -> Correction:
     rng = np.random.default_rng(0)
     poses = world.map.poses
     a = drawn_segment(world, poses, OUTER_BOTTOM, (0, 60), rng, along=(0.3, 0.7))
     b = drawn_segment(world, poses, OUTER_BOTTOM, (265, 325), rng, along=(0.3, 0.7))
-    return DrawnCorrection.make(a, b, Mode.COLOCATION)
+    return Correction.make(a, b, Mode.COLOCATION)
 
 
 def _only(directory: Path, *names: str) -> None:
@@ -126,7 +126,7 @@ def _only(directory: Path, *names: str) -> None:
 
 
 def test_before_after_png_has_size_times_dpi_pixels(
-    world: World, corrections: list[Interpretation], drawn: DrawnCorrection, tmp_path: Path
+    world: World, corrections: list[Interpretation], drawn: Correction, tmp_path: Path
 ) -> None:
     path = tmp_path / "before_after.png"
     out = plot.write_before_after(
@@ -239,7 +239,7 @@ def test_heat_map(world: World, tmp_path: Path) -> None:
 
 
 def test_plot_map_draws_constrained_poses_blue(
-    world: World, corrections: list[Interpretation], drawn: DrawnCorrection
+    world: World, corrections: list[Interpretation], drawn: Correction
 ) -> None:
     m = world.map
     fig = plot.plot_map(m, m.poses, interpretations=corrections, drawn=[drawn], arrows_every=1)

@@ -28,7 +28,7 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.corrections import Correction, Interpretation, Mode
 from hitl_slam.corrections_file import Apply, read_corrections
 from hitl_slam.errors import CorrectionRejected, InputError, SolverError
 from hitl_slam.journal import SCHEMA_VERSION, EventKind, Journal, read_journal
@@ -62,7 +62,7 @@ def tiny_map(n: int = 24) -> Map:
 def fake_applier(
     map: Map,
     poses: NDArray[np.float64],
-    drawn: DrawnCorrection,
+    drawn: Correction,
     active: Sequence[Interpretation],
     config: Config,
 ) -> FakeResult:
@@ -99,16 +99,16 @@ def fake_applier(
     return FakeResult(out, interpretation, len(active) + 1, length_a, 1e-3 * length_b, 1e-3)
 
 
-def drawing(seed: float, mode: Mode | str = Mode.COLLINEAR) -> DrawnCorrection:
-    return DrawnCorrection.make(
+def drawing(seed: float, mode: Mode | str = Mode.COLLINEAR) -> Correction:
+    return Correction.make(
         [[seed, 1.0], [seed + 2.0, 1.5]], [[seed + 0.3, -1.0], [seed + 1.0, 2.0 * seed]], mode
     )
 
 
-REJECTED = DrawnCorrection.make([[1.0, 1.0], [1.0, 1.0]], [[0.0, 0.0], [1.0, 0.0]], "colocation")
+REJECTED = Correction.make([[1.0, 1.0], [1.0, 1.0]], [[0.0, 0.0], [1.0, 0.0]], "colocation")
 
 
-def from_scratch(map: Map, corrections: Sequence[DrawnCorrection]) -> NDArray[np.float64]:
+def from_scratch(map: Map, corrections: Sequence[Correction]) -> NDArray[np.float64]:
     """The model: apply the corrections in order, without any session code."""
     poses = np.array(map.poses)
     active: list[Interpretation] = []
@@ -279,7 +279,7 @@ def test_request_is_committed_before_the_computation(tmp_path: Path) -> None:
     def spy(
         map: Map,
         poses: NDArray[np.float64],
-        drawn: DrawnCorrection,
+        drawn: Correction,
         active: Sequence[Interpretation],
         config: Config,
     ) -> FakeResult:
@@ -483,8 +483,8 @@ ops = st.lists(
 @given(ops)
 def test_any_sequence_equals_the_surviving_corrections_from_scratch(sequence: list[Op]) -> None:
     the_map = tiny_map(16)
-    applied: list[DrawnCorrection] = []
-    redo: list[DrawnCorrection] = []
+    applied: list[Correction] = []
+    redo: list[Correction] = []
     with Session.new(the_map, applier=fake_applier) as session:
         for op, seed, reject in sequence:
             if op == "undo":
@@ -864,7 +864,7 @@ def fakes(monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, bytes]]:
     return written
 
 
-def corrections_file(tmp_path: Path, *items: DrawnCorrection | str) -> Path:
+def corrections_file(tmp_path: Path, *items: Correction | str) -> Path:
     path = tmp_path / "c.jsonl"
     lines = [
         json.dumps({"action": i}) if isinstance(i, str) else json.dumps(i.to_json()) for i in items

@@ -17,7 +17,7 @@ import pytest
 from numpy.typing import NDArray
 
 from hitl_slam.config import Config
-from hitl_slam.corrections import DrawnCorrection, Interpretation
+from hitl_slam.corrections import Correction, Interpretation
 from hitl_slam.corrections_file import Apply, Redo, Undo
 from hitl_slam.errors import CorrectionRejected, InputError, SolverError
 from hitl_slam.map import Map
@@ -39,7 +39,7 @@ class LinesResult:
 def lines_applier(
     map: Map,
     poses: NDArray[np.float64],
-    drawn: DrawnCorrection,
+    drawn: Correction,
     active: Sequence[Interpretation],
     config: Config,
 ) -> LinesResult:

@@ -17,7 +17,7 @@ import pytest
 from numpy.typing import NDArray
 
 from hitl_slam.config import Config
-from hitl_slam.corrections import DrawnCorrection, Interpretation
+from hitl_slam.corrections import Correction, Interpretation
 from hitl_slam.errors import InputError
 from hitl_slam.journal import DamagedSession
 from hitl_slam.loop_closures import (
@@ -167,7 +167,7 @@ class _Recording:
         self,
         map: Map,
         poses: NDArray[np.float64],
-        drawn: DrawnCorrection,
+        drawn: Correction,
         active: Sequence[Interpretation],
         config: Config,
     ) -> CorrectionResult:

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from hitl_slam.cli import main
 from hitl_slam.config import DEFAULT
-from hitl_slam.corrections import DrawnCorrection, Interpretation
+from hitl_slam.corrections import Correction, Interpretation
 from hitl_slam.corrections_file import read_corrections
 from hitl_slam.errors import InputError
 from hitl_slam.geometry import fit_line
@@ -52,7 +52,7 @@ def room() -> Scenario:
 
 
 @pytest.fixture(scope="module")
-def drawings(room: Scenario) -> list[DrawnCorrection]:
+def drawings(room: Scenario) -> list[Correction]:
     """Three drawings the simulated person makes, each on the map as the previous left it."""
     human = SimulatedHuman(room, 0)
     out = []
@@ -65,7 +65,7 @@ def drawings(room: Scenario) -> list[DrawnCorrection]:
     return out
 
 
-def as_json(drawn: DrawnCorrection) -> dict[str, Any]:
+def as_json(drawn: Correction) -> dict[str, Any]:
     return drawn.to_json()
 
 
@@ -174,7 +174,7 @@ def test_binary_arrays_are_the_map_in_float32(client: TestClient, room: Scenario
 
 
 def test_interpret_previews_and_changes_nothing(
-    client: TestClient, room: Scenario, drawings: list[DrawnCorrection]
+    client: TestClient, room: Scenario, drawings: list[Correction]
 ) -> None:
     before = wait_for_metric(client)  # so that no version can come from the metric meanwhile
     poses = poses_bytes(client)
@@ -196,7 +196,7 @@ def test_interpret_previews_and_changes_nothing(
 
 
 def test_apply_moves_the_map_and_the_relation_holds(
-    client: TestClient, room: Scenario, drawings: list[DrawnCorrection]
+    client: TestClient, room: Scenario, drawings: list[Correction]
 ) -> None:
     before = poses_bytes(client)
     version = client.get("/api/state").json()["version"]
@@ -249,7 +249,7 @@ def residual(m: Map, poses: NDArray[np.float64], h: Interpretation) -> tuple[flo
 
 
 def test_relations_are_measured_on_the_current_poses(
-    client: TestClient, host: SessionHost, room: Scenario, drawings: list[DrawnCorrection]
+    client: TestClient, host: SessionHost, room: Scenario, drawings: list[Correction]
 ) -> None:
     assert client.get("/api/relations").json() == []
     client.post("/api/corrections", json=as_json(drawings[0]))
@@ -291,7 +291,7 @@ def test_drawing_over_empty_space_is_rejected_and_changes_nothing(client: TestCl
 
 
 def test_undo_restores_the_poses_exactly_and_redo_reapplies(
-    client: TestClient, drawings: list[DrawnCorrection]
+    client: TestClient, drawings: list[Correction]
 ) -> None:
     r = client.post("/api/undo")
     assert r.status_code == 409
@@ -323,7 +323,7 @@ def test_undo_restores_the_poses_exactly_and_redo_reapplies(
 
 
 def test_a_new_correction_discards_the_redo_stack(
-    client: TestClient, drawings: list[DrawnCorrection]
+    client: TestClient, drawings: list[Correction]
 ) -> None:
     client.post("/api/corrections", json=as_json(drawings[0]))
     client.post("/api/undo")
@@ -336,7 +336,7 @@ def test_a_new_correction_discards_the_redo_stack(
 
 
 def test_long_poll_returns_promptly_on_a_change_from_another_thread(
-    room: Scenario, tmp_path: Path, drawings: list[DrawnCorrection]
+    room: Scenario, tmp_path: Path, drawings: list[Correction]
 ) -> None:
     host = SessionHost(Session.open(session_file(room, tmp_path)), poll_timeout=10.0, metrics=False)
     try:
@@ -382,7 +382,7 @@ def test_long_poll_times_out_with_the_unchanged_state(room: Scenario, tmp_path: 
 
 
 def test_host_wait_wakes_on_change_and_on_close(
-    host: SessionHost, drawings: list[DrawnCorrection]
+    host: SessionHost, drawings: list[Correction]
 ) -> None:
     version = host.version
     threading.Timer(0.2, host.apply, args=(drawings[0],)).start()
@@ -404,7 +404,7 @@ def test_host_wait_wakes_on_change_and_on_close(
 
 
 def test_inconsistency_arrives_after_each_change(
-    client: TestClient, host: SessionHost, room: Scenario, drawings: list[DrawnCorrection]
+    client: TestClient, host: SessionHost, room: Scenario, drawings: list[Correction]
 ) -> None:
     initial = wait_for_metric(client)
     expected = inconsistency(room.map, room.map.poses, DEFAULT).total_m2
@@ -425,7 +425,7 @@ def test_inconsistency_arrives_after_each_change(
     assert undone["inconsistency_m2"] == initial["inconsistency_m2"]
 
 
-def test_two_clients_stay_consistent(host: SessionHost, drawings: list[DrawnCorrection]) -> None:
+def test_two_clients_stay_consistent(host: SessionHost, drawings: list[Correction]) -> None:
     app = create_app(host, token=None)
     with (
         TestClient(app, base_url=BASE, headers=PAGE_HEADERS) as a,
@@ -481,7 +481,7 @@ def test_two_clients_stay_consistent(host: SessionHost, drawings: list[DrawnCorr
 
 
 def test_journal_step_applies_the_corrections_file_in_order(
-    room: Scenario, tmp_path: Path, drawings: list[DrawnCorrection]
+    room: Scenario, tmp_path: Path, drawings: list[Correction]
 ) -> None:
     corrections = tmp_path / "fixes.jsonl"
     corrections.write_text(
@@ -538,7 +538,7 @@ def test_journal_step_without_a_journal_is_a_conflict(client: TestClient) -> Non
 
 
 def test_save_writes_the_four_files_beside_the_session(
-    client: TestClient, host: SessionHost, room: Scenario, drawings: list[DrawnCorrection]
+    client: TestClient, host: SessionHost, room: Scenario, drawings: list[Correction]
 ) -> None:
     client.post("/api/corrections", json=as_json(drawings[0]))
     folder = Path(host.folder)
@@ -560,9 +560,7 @@ def test_save_writes_the_four_files_beside_the_session(
     assert sorted(p.name for p in folder.iterdir() if p.name.startswith(".")) == []
 
 
-def test_export_formats(
-    client: TestClient, host: SessionHost, drawings: list[DrawnCorrection]
-) -> None:
+def test_export_formats(client: TestClient, host: SessionHost, drawings: list[Correction]) -> None:
     client.post("/api/corrections", json=as_json(drawings[0]))
     folder = Path(host.folder)
     for name, expected in (
@@ -592,7 +590,7 @@ def test_export_formats(
 
 
 def test_reopening_the_session_gives_the_same_state(
-    room: Scenario, tmp_path: Path, drawings: list[DrawnCorrection]
+    room: Scenario, tmp_path: Path, drawings: list[Correction]
 ) -> None:
     path = session_file(room, tmp_path)
     host = SessionHost(Session.open(path), metrics=False)
@@ -731,7 +729,7 @@ def test_demo_points_to_the_serve_command(
 
 
 def test_other_requests_are_answered_while_a_correction_computes(
-    room: Scenario, drawings: list[DrawnCorrection], tmp_path: Path
+    room: Scenario, drawings: list[Correction], tmp_path: Path
 ) -> None:
     # An applier that takes a second (without the GIL, like the Rust solve): meanwhile the state,
     # the arrays and the long-poll answer at once, with the map from before the correction.
@@ -777,7 +775,7 @@ def test_other_requests_are_answered_while_a_correction_computes(
 
 
 def test_state_serves_the_solved_lines(
-    host: SessionHost, client: TestClient, room: Scenario, drawings: list[DrawnCorrection]
+    host: SessionHost, client: TestClient, room: Scenario, drawings: list[Correction]
 ) -> None:
     """Each correction in effect comes with its solved lines (the session's, not a refit), each
     as the stretch of that line its observations cover; undo brings the earlier ones back."""
@@ -809,7 +807,7 @@ def test_state_serves_the_solved_lines(
 
 
 def test_a_correction_costs_the_page_only_its_poses(
-    client: TestClient, room: Scenario, drawings: list[DrawnCorrection]
+    client: TestClient, room: Scenario, drawings: list[Correction]
 ) -> None:
     """The scans are fetched once in the robot frame; a new map is the poses (N * 12 bytes)."""
     scans = client.get("/api/map/scans").content

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hitl_slam.corrections import DrawnCorrection, Mode
+from hitl_slam.corrections import Correction, Mode
 from hitl_slam.corrections_file import write_corrections
 from hitl_slam.session import Session
 from hitl_slam.sim import SimulatedHuman, lost_poses_room
@@ -49,7 +49,7 @@ def demo(tmp_path: Path) -> Iterator[Server]:
 
 
 @pytest.fixture(scope="module")
-def first_correction() -> DrawnCorrection:
+def first_correction() -> Correction:
     """What the simulated human draws first on the damaged demo room: two passes along the
     south wall, 26 degrees apart, collinear."""
     scenario = lost_poses_room(0)
@@ -59,11 +59,11 @@ def first_correction() -> DrawnCorrection:
     return drawn
 
 
-def world(drawn: DrawnCorrection) -> tuple[list[list[float]], list[list[float]]]:
+def world(drawn: Correction) -> tuple[list[list[float]], list[list[float]]]:
     return [list(p) for p in drawn.a], [list(p) for p in drawn.b]
 
 
-def focus_on(page: Any, drawn: DrawnCorrection) -> None:
+def focus_on(page: Any, drawn: Correction) -> None:
     """Zoom in on the drawing as far as the human's accuracy asks (sigma_h -> pixels)."""
     a, b = world(drawn)
     centre = np.mean(np.array(a + b), axis=0)
@@ -72,13 +72,13 @@ def focus_on(page: Any, drawn: DrawnCorrection) -> None:
     assert page.evaluate("window.hitl.sigmaH()") <= sigma + 1e-9
 
 
-def draw_pair(page: Any, drawn: DrawnCorrection, modifiers: list[str]) -> None:
+def draw_pair(page: Any, drawn: Correction, modifiers: list[str]) -> None:
     a, b = world(drawn)
     draw_segment(page, a, modifiers)
     draw_segment(page, b, modifiers)
 
 
-def apply_through_page(page: Any, drawn: DrawnCorrection) -> int:
+def apply_through_page(page: Any, drawn: Correction) -> int:
     """Zoom in, p, Shift-drag both segments, wait for the preview, p; the new version."""
     focus_on(page, drawn)
     page.keyboard.press("p")
@@ -90,7 +90,7 @@ def apply_through_page(page: Any, drawn: DrawnCorrection) -> int:
 
 
 def test_collinear_correction_from_the_simulated_human(
-    browser: Any, demo: Server, first_correction: DrawnCorrection
+    browser: Any, demo: Server, first_correction: Correction
 ) -> None:
     page = open_page(browser, demo.url)
     scenario = lost_poses_room(0)
@@ -147,7 +147,7 @@ def test_collinear_correction_from_the_simulated_human(
 
 
 def test_undo_restores_the_map_exactly_and_redo_brings_it_back(
-    browser: Any, demo: Server, first_correction: DrawnCorrection
+    browser: Any, demo: Server, first_correction: Correction
 ) -> None:
     page = open_page(browser, demo.url)
     original = demo.poses_bytes()
@@ -186,7 +186,7 @@ SLOW_CORRECTIONS = """
 
 
 def test_a_key_pressed_during_a_long_correction_waits_says_so_and_runs_after_it(
-    browser: Any, demo: Server, first_correction: DrawnCorrection
+    browser: Any, demo: Server, first_correction: Correction
 ) -> None:
     """Issue 40: u pressed while a correction solves is not dropped. It is queued, the page says
     so, and it undoes the correction once that is in."""
@@ -262,7 +262,7 @@ def test_a_drawing_over_empty_space_is_rejected_and_changes_nothing(
 def test_modifier_keys_pick_the_mode(
     browser: Any,
     shared_demo: Server,
-    first_correction: DrawnCorrection,
+    first_correction: Correction,
     modifiers: list[str],
     mode: str,
 ) -> None:
@@ -291,7 +291,7 @@ def shared_demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
 
 
 def test_escape_help_buttons_errors_and_two_tabs(
-    browser: Any, demo: Server, first_correction: DrawnCorrection
+    browser: Any, demo: Server, first_correction: Correction
 ) -> None:
     page = open_page(browser, demo.url)
     # The second tab is a second window: Chromium throttles a tab in the background, as it would
@@ -392,7 +392,7 @@ def test_save_and_journal_step(tmp_path: Path, browser: Any) -> None:
     # A corrections file of the human's first two drawings, and where they lead.
     scenario = lost_poses_room(0)
     human = SimulatedHuman(scenario, 0)
-    steps: list[DrawnCorrection] = []
+    steps: list[Correction] = []
     with Session.new(scenario.map) as reference:
         for _ in range(2):
             drawn = human.next_correction(reference.poses)
@@ -442,7 +442,7 @@ def drawn_lines(page: Any) -> dict[str, Any]:
 
 
 def test_a_reload_shows_every_segment_where_the_live_page_did(
-    browser: Any, demo: Server, first_correction: DrawnCorrection
+    browser: Any, demo: Server, first_correction: Correction
 ) -> None:
     """A colocation of the two passes of the south wall: live, both solved lines sit on the wall;
     after a reload they are drawn exactly where they were (the server's lines, not a guess)."""
@@ -452,7 +452,7 @@ def test_a_reload_shows_every_segment_where_the_live_page_did(
     assert "press p" in hint, hint
     assert "Ctrl" in hint, hint
 
-    drawn = DrawnCorrection.make(
+    drawn = Correction.make(
         first_correction.a, first_correction.b, "colocation", first_correction.sigma_h
     )
     focus_on(page, drawn)
@@ -497,7 +497,7 @@ def test_a_reload_shows_every_segment_where_the_live_page_did(
 
 @pytest.mark.parametrize("points", ["gpu", "cpu"])
 def test_both_point_paths_place_the_scans_by_the_poses(
-    browser: Any, demo: Server, first_correction: DrawnCorrection, points: str
+    browser: Any, demo: Server, first_correction: Correction, points: str
 ) -> None:
     """The points drawn by the vertex shader (a pose texture) and by the CPU splat land on the
     same pixels, before and after a correction moves them."""

@@ -27,7 +27,7 @@ import httpx
 import numpy as np
 import pytest
 
-from hitl_slam.corrections import DrawnCorrection
+from hitl_slam.corrections import Correction
 from hitl_slam.errors import InputError
 from hitl_slam.session import Session
 from hitl_slam.sim import SimulatedHuman, campus, lost_poses_room
@@ -745,7 +745,7 @@ def undoable_and_redoable(site: Site) -> None:
     assert state["can_redo"], state["history"]
 
 
-def drawn_correction(body: dict[str, Any]) -> DrawnCorrection:
+def drawn_correction(body: dict[str, Any]) -> Correction:
     return Drawn.model_validate(body).to_correction()
 
 

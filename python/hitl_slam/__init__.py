@@ -24,16 +24,15 @@ dependencies (the ``[web]`` extra) nor matplotlib (the ``[plot]`` extra).
 
 What is here, by task:
 
-- pose graphs: :func:`load_graph`, :func:`load_graph_with_report` (:class:`LoadReport`),
-  :func:`save_graph`, :class:`PoseGraph`; solving: :func:`optimize` (:class:`Method`,
-  :class:`Init`, :class:`SolveReport`, :class:`IterationRecord`), :func:`chi2`,
-  :func:`downweighted`, :func:`marginals`.
+- pose graphs: :func:`load_graph` (what it met while reading: ``graph.load_report``, a
+  :class:`LoadReport`), :func:`save_graph`, :class:`PoseGraph`; solving: :func:`optimize`
+  (:class:`Method`, :class:`Init`, :class:`SolveReport`, :class:`IterationRecord`),
+  :func:`chi2`, :func:`downweighted`, :func:`marginals`.
 - maps with observations: :func:`load_map`, :class:`Map`, :func:`export`.
-- corrections: :class:`Correction` (two drawn segments and a :class:`Mode`; also known as
-  :class:`DrawnCorrection`), :class:`Session` (:meth:`Session.new`, :meth:`Session.open`;
-  :class:`HistoryEntry`, :class:`EntryStatus`; what :meth:`Session.undo` and :meth:`Session.redo`
-  return: a :class:`HistoryEntry`, a :class:`LoopClosureStep` or an :class:`AlignStep`),
-  :class:`Config`; the steps a session runs:
+- corrections: :class:`Correction` (two drawn segments and a :class:`Mode`), :class:`Session`
+  (:meth:`Session.new`, :meth:`Session.open`; :class:`HistoryEntry`, :class:`EntryStatus`; what
+  :meth:`Session.undo` and :meth:`Session.redo` return: a :class:`HistoryEntry`, a
+  :class:`LoopClosureStep` or an :class:`AlignStep`), :class:`Config`; the steps a session runs:
   :func:`interpret` (what a drawing selects, an :class:`Interpretation`) and
   :func:`apply_correction` (one correction end to end, a :class:`CorrectionResult`); JSON Lines
   corrections files: :func:`read_corrections`, :func:`write_corrections`.
@@ -51,7 +50,7 @@ import logging
 
 from hitl_slam._core import IterationRecord, SolveReport, __version__
 from hitl_slam.config import Config
-from hitl_slam.corrections import Correction, DrawnCorrection, Interpretation, Mode
+from hitl_slam.corrections import Correction, Interpretation, Mode
 from hitl_slam.corrections_file import read_corrections, write_corrections
 from hitl_slam.errors import (
     AlignmentRefused,
@@ -66,7 +65,7 @@ from hitl_slam.errors import (
 )
 from hitl_slam.graph import PoseGraph
 from hitl_slam.interpret import interpret
-from hitl_slam.io import LoadReport, load_graph, load_graph_with_report, save_graph
+from hitl_slam.io import LoadReport, load_graph, save_graph
 from hitl_slam.io.export import export
 from hitl_slam.io.maps import load_map
 from hitl_slam.map import Map
@@ -85,7 +84,6 @@ __all__ = [
     "CorrectionRejected",
     "CorrectionResult",
     "DamagedSession",
-    "DrawnCorrection",
     "EntryStatus",
     "HistoryEntry",
     "HitlSlamError",
@@ -115,7 +113,6 @@ __all__ = [
     "inconsistency",
     "interpret",
     "load_graph",
-    "load_graph_with_report",
     "load_map",
     "marginals",
     "optimize",

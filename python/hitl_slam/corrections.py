@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from hitl_slam.errors import InputError
 
-__all__ = ["Correction", "DrawnCorrection", "Interpretation", "Mode", "Segment"]
+__all__ = ["Correction", "Interpretation", "Mode", "Segment"]
 
 Segment = tuple[tuple[float, float], tuple[float, float]]
 
@@ -54,7 +54,7 @@ def _segment(name: str, value: Any) -> Segment:
 
 
 @dataclass(frozen=True)
-class DrawnCorrection:
+class Correction:
     """Two segments drawn on the map as displayed (world frame, metres) and a mode.
 
     ``sigma_h`` is the drawer's accuracy in metres (None: the configuration's default).
@@ -66,9 +66,7 @@ class DrawnCorrection:
     sigma_h: float | None = None
 
     @classmethod
-    def make(
-        cls, a: Any, b: Any, mode: Mode | str, sigma_h: float | None = None
-    ) -> DrawnCorrection:
+    def make(cls, a: Any, b: Any, mode: Mode | str, sigma_h: float | None = None) -> Correction:
         """Validated construction from loose input (lists, arrays, strings)."""
         if sigma_h is not None and not (math.isfinite(sigma_h) and sigma_h > 0):
             raise InputError(f"sigma_h must be a positive number of metres, got {sigma_h!r}")
@@ -83,11 +81,6 @@ class DrawnCorrection:
         if self.sigma_h is not None:
             out["sigma_h"] = self.sigma_h
         return out
-
-
-Correction = DrawnCorrection
-"""The public name of a drawn correction (``hitl_slam.Correction``): the same class, so
-``Correction.make(a, b, "collinear")`` and ``DrawnCorrection.make(...)`` are interchangeable."""
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from hitl_slam.corrections import DrawnCorrection, Mode
+from hitl_slam.corrections import Correction, Mode
 from hitl_slam.errors import InputError
 from hitl_slam.io.atomic import atomic_writer
 from hitl_slam.io.textfile import MAX_COORDINATE, MAX_INFORMATION, check_regular_file, sci
@@ -70,7 +70,7 @@ _EXAMPLE = '{"mode": "collinear", "a": [[x0, y0], [x1, y1]], "b": [[x0, y0], [x1
 class Apply:
     """Apply a drawn correction; ``line`` is where it was read (0 when not from a file)."""
 
-    drawn: DrawnCorrection
+    drawn: Correction
     line: int = 0
 
 
@@ -265,7 +265,7 @@ def _parse_line(text: str, number: int) -> Step | None:
             "give the drawing accuracy in metres, e.g. 0.1, or leave sigma_h out",
         )
     try:
-        drawn = DrawnCorrection.make(a, b, mode, None if sigma_h is None else float(sigma_h))
+        drawn = Correction.make(a, b, mode, None if sigma_h is None else float(sigma_h))
     except InputError as exc:
         raise _LineError(str(exc), "fix the line") from None
     return Apply(drawn, number)
@@ -308,17 +308,15 @@ def read_corrections(path: str | os.PathLike[str]) -> list[Step]:
     return steps
 
 
-def _as_json(step: Step | DrawnCorrection) -> dict[str, Any]:
-    if isinstance(step, DrawnCorrection):
+def _as_json(step: Step | Correction) -> dict[str, Any]:
+    if isinstance(step, Correction):
         return step.to_json()
     if isinstance(step, Apply):
         return step.drawn.to_json()
     return {"action": "undo" if isinstance(step, Undo) else "redo"}
 
 
-def write_corrections(
-    path: str | os.PathLike[str], steps: Iterable[Step | DrawnCorrection]
-) -> None:
+def write_corrections(path: str | os.PathLike[str], steps: Iterable[Step | Correction]) -> None:
     """Write ``steps`` as a corrections file, one JSON object per line, atomically.
 
     Numbers are written exactly (shortest round-trip form), so reading the file back gives equal

@@ -18,6 +18,7 @@ from hitl_slam.errors import InputError
 
 if TYPE_CHECKING:
     from hitl_slam import _core
+    from hitl_slam.io import LoadReport
 
 __all__ = ["PoseGraph"]
 
@@ -46,6 +47,8 @@ class PoseGraph:
         vertex_ids: ``(N,)`` int64 vertex ids as written in the source file.
         anchor: row index of the pose held fixed (the gauge), 0 by default.
         source: the file the graph was read from, if any.
+        load_report: what :func:`hitl_slam.load_graph` met while reading it (skipped tags,
+            merged vertices, dropped self-loops, poses chained from the odometry), if it was read.
     """
 
     poses: NDArray[np.float64]
@@ -55,6 +58,7 @@ class PoseGraph:
     vertex_ids: NDArray[np.int64] | None = None
     anchor: int = 0
     source: str | None = None
+    load_report: LoadReport | None = field(default=None, repr=False)
     _engine: _core.Graph | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:

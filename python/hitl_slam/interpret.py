@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode, Segment
+from hitl_slam.corrections import Correction, Interpretation, Mode, Segment
 from hitl_slam.errors import CorrectionRejected, InputError
 from hitl_slam.map import Map
 
@@ -56,7 +56,7 @@ def map_scans(map: Map) -> _core.MapScans:
 def interpret(
     map: Map,
     poses: NDArray[np.float64],
-    drawn: DrawnCorrection,
+    drawn: Correction,
     config: Config = DEFAULT,
     *,
     visit_gap: int | None = None,
@@ -108,7 +108,7 @@ def interpret(
 
 
 def checked_drawing(
-    drawn: DrawnCorrection, config: Config
+    drawn: Correction, config: Config
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """The two segments as (2, 2) arrays and the drawing's sigma_h, checked: a drawing that
     cannot be read raises CorrectionRejected (what to draw instead), a config that cannot

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.corrections import DrawnCorrection, Interpretation
+from hitl_slam.corrections import Correction, Interpretation
 from hitl_slam.errors import CorrectionRejected, InputError, SolverError
 from hitl_slam.geometry import chain_steps
 from hitl_slam.map import Map, motion_model_information
@@ -312,7 +312,7 @@ def _unchecked_alternative(
 def apply_correction(
     map: Map,
     poses: FloatArray,
-    drawn: DrawnCorrection,
+    drawn: Correction,
     active: Sequence[Interpretation] = (),
     config: Config = DEFAULT,
     *,

@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 # scipy ships no type information; "unused-ignore" keeps this clean once scipy-stubs is added.
 from scipy.sparse import csr_array  # type: ignore[import-untyped, unused-ignore]
 
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.corrections import Correction, Interpretation, Mode
 from hitl_slam.errors import InputError
 from hitl_slam.extras import missing_extra
 from hitl_slam.geometry import principal_axes
@@ -140,16 +140,16 @@ def _check_interpretations(map: Map, interpretations: Any) -> tuple[Interpretati
     return items
 
 
-def _check_drawn(drawn: Any) -> tuple[DrawnCorrection, ...]:
-    if isinstance(drawn, DrawnCorrection):
+def _check_drawn(drawn: Any) -> tuple[Correction, ...]:
+    if isinstance(drawn, Correction):
         raise InputError("drawn must be a sequence; wrap a single correction as (d,)")
     try:
         items = tuple(drawn)
     except TypeError:
-        raise InputError("drawn must be a sequence of DrawnCorrection") from None
+        raise InputError("drawn must be a sequence of Correction") from None
     for k, d in enumerate(items):
-        if not isinstance(d, DrawnCorrection):
-            raise InputError(f"drawn[{k}] is a {type(d).__name__}, not a DrawnCorrection")
+        if not isinstance(d, Correction):
+            raise InputError(f"drawn[{k}] is a {type(d).__name__}, not a Correction")
     return items
 
 
@@ -294,7 +294,7 @@ def _draw_map(
     map: Map,
     poses: FloatArray,
     interpretations: Sequence[Interpretation],
-    drawn: Sequence[DrawnCorrection],
+    drawn: Sequence[Correction],
     *,
     max_points: int,
     arrows_every: int | None,
@@ -403,7 +403,7 @@ def plot_map(
     poses: ArrayLike,
     *,
     interpretations: Sequence[Interpretation] = (),
-    drawn: Sequence[DrawnCorrection] = (),
+    drawn: Sequence[Correction] = (),
     title: str | None = None,
     ax: Axes | None = None,
     max_points: int = 200_000,
@@ -471,7 +471,7 @@ def write_before_after(
     path: PathLike,
     *,
     interpretations: Sequence[Interpretation] = (),
-    drawn: Sequence[DrawnCorrection] = (),
+    drawn: Sequence[Correction] = (),
     titles: tuple[str, str] = ("before", "after"),
     dpi: float = 150.0,
     size: tuple[float, float] = (12.0, 6.0),

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.corrections import Correction, Interpretation, Mode
 from hitl_slam.corrections_file import Apply, Step, Undo
 from hitl_slam.errors import (
     CorrectionRejected,
@@ -93,7 +93,7 @@ class CorrectionOutcome(Protocol):
 
 
 Applier = Callable[
-    [Map, NDArray[np.float64], DrawnCorrection, Sequence[Interpretation], Config],
+    [Map, NDArray[np.float64], Correction, Sequence[Interpretation], Config],
     CorrectionOutcome,
 ]
 """``(map, poses, drawn, active, config) -> outcome``: interpret ``drawn`` on ``poses`` and solve
@@ -153,7 +153,7 @@ class HistoryEntry:
     index: int  # position in the history, from 0
     seq: int  # journal sequence number of its request event
     time: float  # Unix time of the request
-    drawn: DrawnCorrection  # the raw input
+    drawn: Correction  # the raw input
     status: EntryStatus
     interpretation: Interpretation | None = None  # set once applied
     stats: CorrectionStats | None = None  # set once applied
@@ -169,7 +169,7 @@ class _Entry:
     index: int
     seq: int
     time: float
-    drawn: DrawnCorrection
+    drawn: Correction
     status: EntryStatus
     interpretation: Interpretation | None = None
     stats: CorrectionStats | None = None
@@ -330,10 +330,10 @@ def _graph_from_json(
     return edges, z, info.reshape(m, 3, 3)
 
 
-def _drawn_from_json(data: Any) -> DrawnCorrection:
+def _drawn_from_json(data: Any) -> Correction:
     if not isinstance(data, dict):
         raise TypeError("the correction is not a JSON object")
-    return DrawnCorrection.make(data["a"], data["b"], data["mode"], data.get("sigma_h"))
+    return Correction.make(data["a"], data["b"], data["mode"], data.get("sigma_h"))
 
 
 class _State:
@@ -738,7 +738,7 @@ class StepResult:
 
 def apply_in_order(
     map: Map,
-    corrections: Sequence[DrawnCorrection],
+    corrections: Sequence[Correction],
     config: Config = DEFAULT,
     applier: Applier | None = None,
     *,
@@ -765,7 +765,7 @@ def _apply_next(
     apply: Applier,
     map: Map,
     poses: NDArray[np.float64],
-    drawn: DrawnCorrection,
+    drawn: Correction,
     active: list[Interpretation],
     outcomes: list[Any],
     config: Config,
@@ -1038,7 +1038,7 @@ class Session:
             return top.lines
 
     @property
-    def corrections(self) -> list[DrawnCorrection]:
+    def corrections(self) -> list[Correction]:
         """The raw input of the applied corrections, in order."""
         with self._guard:
             return [e.drawn for e in self._state.applied if isinstance(e, _Entry)]
@@ -1060,7 +1060,7 @@ class Session:
     ) -> CorrectionOutcome:
         """Apply the correction drawn as segments ``a`` and ``b`` (two ``[x, y]`` endpoints each,
         world frame, metres) with ``mode``; see :meth:`apply`."""
-        return self.apply(DrawnCorrection.make(a, b, mode, sigma_h))
+        return self.apply(Correction.make(a, b, mode, sigma_h))
 
     def prepare(self) -> threading.Thread | None:
         """Starts making, in a background thread, what the first correction would wait for
@@ -1089,7 +1089,7 @@ class Session:
         this session's workspace."""
         return applier if applier is not None else _default_applier(self._workspace)
 
-    def apply(self, drawn: DrawnCorrection) -> CorrectionOutcome:
+    def apply(self, drawn: Correction) -> CorrectionOutcome:
         """Apply one correction on the map as it stands, dropping anything undone.
 
         Order: the request is journaled, then computed, then the outcome journaled (with the new

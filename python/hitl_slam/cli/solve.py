@@ -113,7 +113,7 @@ def _not_a_pose_graph(path: Path, kind: str) -> InputError:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from hitl_slam.io import GraphFormat, load_graph_with_report, save_graph
+    from hitl_slam.io import GraphFormat, load_graph, save_graph
     from hitl_slam.io.maps import looks_like_carmen, map_kind
     from hitl_slam.solve import Init, Method, downweighted, optimize, robust_pairs
 
@@ -128,9 +128,9 @@ def run(args: argparse.Namespace) -> int:
     robust = robust_pairs(",".join(args.robust)) if args.robust else []
     t0 = time.perf_counter()
     try:
-        graph, load = with_progress(
-            "loading", args.quiet, lambda: load_graph_with_report(args.graph)
-        )
+        graph = with_progress("loading", args.quiet, lambda: load_graph(args.graph))
+        load = graph.load_report
+        assert load is not None  # load_graph always records it
     except InputError:
         if looks_like_carmen(source):
             raise _not_a_pose_graph(source, "a CARMEN log") from None

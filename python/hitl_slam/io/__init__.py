@@ -37,7 +37,7 @@ from hitl_slam.io.textfile import (
     sci,
 )
 
-__all__ = ["GraphFormat", "LoadReport", "load_graph", "load_graph_with_report", "save_graph"]
+__all__ = ["GraphFormat", "LoadReport", "load_graph", "save_graph"]
 
 _log = logging.getLogger("hitl_slam")
 _MAX_TAGS_SHOWN = 10
@@ -78,19 +78,15 @@ class LoadReport:
 
 
 def load_graph(path: PathLike) -> PoseGraph:
-    """Read a g2o or TORO 2D pose graph; see :func:`load_graph_with_report`."""
-    return load_graph_with_report(path)[0]
-
-
-def load_graph_with_report(path: PathLike) -> tuple[PoseGraph, LoadReport]:
     """Read a g2o (``.g2o``) or TORO (``.graph``) 2D pose graph, optionally ``.gz``/``.bz2``.
 
     Other extensions are recognised by the first data line (``VERTEX_SE2``/``EDGE_SE2`` or
     ``VERTEX2``/``EDGE2``). Rows follow the order in which vertices first appear in the file;
     a file with edges but no vertex lines gets rows in sorted id order and initial poses chained
     along the odometry edges (consecutive ids) from the origin. Angles are wrapped to (-pi, pi].
-    The anchor is row 0 unless a g2o ``FIX`` line names another vertex. Skipped tags are
-    counted in the report and logged as a warning on the ``hitl_slam`` logger.
+    The anchor is row 0 unless a g2o ``FIX`` line names another vertex. What the reader met is
+    in ``graph.load_report`` (:class:`LoadReport`); skipped tags are also logged as a warning on
+    the ``hitl_slam`` logger.
 
     Raises:
         InputError: for any problem with the file, as ``{path}:{line}: {what}; {what to do}``.
@@ -109,7 +105,8 @@ def load_graph_with_report(path: PathLike) -> tuple[PoseGraph, LoadReport]:
         poses_from_odometry=not raw.vertex_ids,
     )
     _log_report(report, raw)
-    return graph, report
+    graph.load_report = report
+    return graph
 
 
 def save_graph(graph: PoseGraph, poses: ArrayLike | None, path: PathLike) -> None:

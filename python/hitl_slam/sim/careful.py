@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.corrections import DrawnCorrection, Mode
+from hitl_slam.corrections import Correction, Mode
 from hitl_slam.errors import InputError
 from hitl_slam.sim.human import Inconsistency, SimulatedHuman, Visit
 from hitl_slam.sim.scenario import Scenario, fit_points
@@ -111,7 +111,7 @@ class CarefulPerson(SimulatedHuman):
         (a0, a1), (b0, b1) = self._extent(issue.a), self._extent(issue.b)
         return abs(a0 - b0) <= _SAME_ENDS_M and abs(a1 - b1) <= _SAME_ENDS_M
 
-    def _draw_pair(self, poses: FloatArray, issue: Inconsistency) -> DrawnCorrection | None:
+    def _draw_pair(self, poses: FloatArray, issue: Inconsistency) -> Correction | None:
         same = self._same_stretch(issue)
         segments = []
         for visit in (issue.a, issue.b):
@@ -120,7 +120,7 @@ class CarefulPerson(SimulatedHuman):
                 return None
             segments.append(seg)
         mode = Mode.COLOCATION if same else issue.mode
-        return DrawnCorrection.make(segments[0], segments[1], mode)
+        return Correction.make(segments[0], segments[1], mode)
 
     def _segment(self, poses: FloatArray, visit: Visit, *, whole: bool) -> list[list[float]] | None:
         if whole:

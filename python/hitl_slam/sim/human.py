@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Mode
+from hitl_slam.corrections import Correction, Interpretation, Mode
 from hitl_slam.errors import CorrectionRejected, InputError
 from hitl_slam.geometry import to_world
 from hitl_slam.interpret import interpret
@@ -242,7 +242,7 @@ class SimulatedHuman:
 
     # -- drawing ----------------------------------------------------------------------------
 
-    def next_correction(self, poses: FloatArray) -> DrawnCorrection | None:
+    def next_correction(self, poses: FloatArray) -> Correction | None:
         """The next drawing on the map shown with ``poses``, or None when nothing visibly wrong
         is left (or every wrong pair was tried). :attr:`last` says what it is meant to fix."""
         poses = np.ascontiguousarray(poses, dtype=np.float64)
@@ -263,12 +263,12 @@ class SimulatedHuman:
         self.last = None
         return None
 
-    def rejected(self, drawn: DrawnCorrection) -> None:
+    def rejected(self, drawn: Correction) -> None:
         """Told that ``drawn`` (the latest drawing) was rejected: that pair is not tried again."""
         if self.last is not None:
             self._attempts[self.last.key] = self.max_attempts
 
-    def _draw_pair(self, poses: FloatArray, issue: Inconsistency) -> DrawnCorrection | None:
+    def _draw_pair(self, poses: FloatArray, issue: Inconsistency) -> Correction | None:
         zoom = 1.0
         for _ in range(self.max_redraws + 1):
             a = self._draw_visit(poses, issue.a, zoom)
@@ -277,7 +277,7 @@ class SimulatedHuman:
                 return None
             (seg_a, sigma_a), (seg_b, sigma_b) = a, b
             sigma = min(sigma_a, sigma_b)
-            drawn = DrawnCorrection.make(
+            drawn = Correction.make(
                 seg_a, seg_b, issue.mode, sigma if sigma < self.config.sigma_h else None
             )
             if not self.check_selection or self._selects(poses, drawn, issue):
@@ -348,7 +348,7 @@ class SimulatedHuman:
                 gap = min(gap, float(np.quantile(d, 0.05)))
         return gap
 
-    def _selects(self, poses: FloatArray, drawn: DrawnCorrection, issue: Inconsistency) -> bool:
+    def _selects(self, poses: FloatArray, drawn: Correction, issue: Inconsistency) -> bool:
         """Whether ``drawn`` selects two passes by the walls meant that visibly disagree: the
         passes meant, or, where copies of a wall coincide on the map, others just like them."""
         try:
@@ -407,7 +407,7 @@ class SimulatedHuman:
 class RepairStep:
     """One applied correction: what was drawn, what it was meant to fix, how it was understood."""
 
-    drawn: DrawnCorrection
+    drawn: Correction
     intent: Inconsistency | None
     interpretation: Interpretation
     time_s: float

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.config import Config
-from hitl_slam.corrections import DrawnCorrection, Interpretation, Segment
+from hitl_slam.corrections import Correction, Interpretation, Segment
 from hitl_slam.errors import CorrectionRejected
 from hitl_slam.geometry import to_world
 from hitl_slam.map import Map
@@ -126,7 +126,7 @@ def oracle_applier(
     def apply(
         map: Map,
         poses: FloatArray,
-        drawn: DrawnCorrection,
+        drawn: Correction,
         active: Sequence[Interpretation],
         config: Config,
     ) -> CorrectionResult:

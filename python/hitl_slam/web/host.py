@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from hitl_slam.corrections import DrawnCorrection, Interpretation
+from hitl_slam.corrections import Correction, Interpretation
 from hitl_slam.corrections_file import Apply, Step, Undo
 from hitl_slam.errors import CorrectionRejected, HitlSlamError, InputError, SolverError
 from hitl_slam.session import CorrectionStats, HistoryEntry, Session, StepRefused
@@ -249,7 +249,7 @@ class SessionHost:
         snap = self.snapshot
         return relation_residuals(self._map, snap.poses, self._active_with_index(snap))
 
-    def interpret(self, drawn: DrawnCorrection) -> dict[str, Any]:
+    def interpret(self, drawn: Correction) -> dict[str, Any]:
         """The Preview of ``drawn`` on the current poses: EM only, nothing changes or is
         journaled."""
         from hitl_slam.interpret import interpret
@@ -263,7 +263,7 @@ class SessionHost:
 
     # -- changing ---------------------------------------------------------------------------
 
-    def apply(self, drawn: DrawnCorrection) -> dict[str, Any]:
+    def apply(self, drawn: Correction) -> dict[str, Any]:
         """Apply one correction (serialized with every other change); the Applied document.
         A drawing that cannot be interpreted, or a failed solve, answers ``accepted: false``
         with the reason and leaves the map unchanged."""

@@ -9,7 +9,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict
 
-from hitl_slam.corrections import DrawnCorrection
+from hitl_slam.corrections import Correction
 
 __all__ = [
     "MAX_COORDINATE",
@@ -83,8 +83,8 @@ class Drawn(_Request):
         None
     )
 
-    def to_correction(self) -> DrawnCorrection:
-        return DrawnCorrection.make(self.a, self.b, self.mode, self.sigma_h)
+    def to_correction(self) -> Correction:
+        return Correction.make(self.a, self.b, self.mode, self.sigma_h)
 
 
 class LoopClosureRequest(_Request):
