@@ -1,11 +1,12 @@
-"""The oracle applier of benches/harm_oracle.py (docs/ALGORITHM.md §I.14): it must select exactly
-the observations the careful person meant, put each fault's variance on the steps it hit, and
-run inside the full evaluation in place of the pipeline."""
+"""The oracle applier of `hitl-slam evaluate --full --applier oracle` (docs/ALGORITHM.md
+§I.14): it must select exactly the observations the careful person meant, put each fault's
+variance on the steps it hit, and run inside the full evaluation in place of the pipeline."""
 
 from __future__ import annotations
 
 import functools
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -99,3 +100,30 @@ def test_the_full_evaluation_runs_with_the_oracle_and_accepts_every_drawing(
     assert all(d.meant is True for d in run.drawings)
     assert math.isfinite(run.ate[1])
     assert run.angle[1] < run.angle[0]
+
+
+def test_the_full_evaluation_command_takes_the_oracle_as_its_applier(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """`hitl-slam evaluate --full --applier oracle-model` hands run_full the oracle with the
+    odometry's true noise; --applier without --full is refused."""
+    import hitl_slam.full_evaluation as full
+    from hitl_slam.cli import main
+
+    class Stop(Exception):
+        pass
+
+    seen: list[object] = []
+
+    def fake_run_full(**kwargs: object) -> None:
+        seen.append(kwargs["applier"])
+        raise Stop
+
+    monkeypatch.setattr(full, "run_full", fake_run_full)
+    with pytest.raises(Stop):
+        main(["evaluate", "--full", "--applier", "oracle-model", "-o", str(tmp_path), "-q"])
+    (applier,) = seen
+    assert isinstance(applier, functools.partial)
+    assert applier.func is oracle_applier
+    assert applier.keywords == {"error_model": True}
+    assert main(["evaluate", "--applier", "oracle", "-o", str(tmp_path)]) == 2

@@ -78,6 +78,15 @@ def add_parser(sub: Commands) -> None:
         help="with --full: the person does not align the map with its scans after drawing",
     )
     evaluate.add_argument(
+        "--applier",
+        choices=("pipeline", "oracle", "oracle-model"),
+        default="pipeline",
+        help="with --full: what computes each correction: hitl-slam's own (default); 'oracle', "
+        "which knows the observations the person meant (perfect data association, no guard; "
+        "docs/ALGORITHM.md §I.14); 'oracle-model', the same with the odometry's true noise as its "
+        "information: how often a true correction still makes the map worse",
+    )
+    evaluate.add_argument(
         "-j", "--jobs", type=int, default=1, help="with --full: runs at once (default 1)"
     )
     evaluate.add_argument("-q", "--quiet", action="store_true", help="only the table")
@@ -90,9 +99,10 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.output)
     if args.full:
         return _evaluate_full(args, out)
-    if args.maps or args.faults or args.no_align:
+    if args.maps or args.faults or args.no_align or args.applier != "pipeline":
         raise InputError(
-            "--maps, --faults and --no-align are options of the full evaluation; add --full"
+            "--maps, --faults, --no-align and --applier are options of the full evaluation; "
+            "add --full"
         )
     require("plot", "hitl-slam evaluate")  # the report's figures
     log = (lambda _m: None) if args.quiet else print
@@ -142,6 +152,13 @@ def _evaluate_full(args: argparse.Namespace, out: Path) -> int:
                 flush=True,
             )
 
+    applier = None
+    if args.applier != "pipeline":
+        import functools
+
+        from hitl_slam.sim.oracle import oracle_applier
+
+        applier = functools.partial(oracle_applier, error_model=args.applier == "oracle-model")
     start = time.perf_counter()
     runs = run_full(
         seed=args.seed,
@@ -150,11 +167,13 @@ def _evaluate_full(args: argparse.Namespace, out: Path) -> int:
         jobs=args.jobs,
         log=log,
         align=not args.no_align,
+        applier=applier,
     )
     out.mkdir(parents=True, exist_ok=True)
     flags = " --full" + (f" --maps {args.maps}" if args.maps else "")
     flags += f" --faults {args.faults}" if args.faults else ""
     flags += " --no-align" if args.no_align else ""
+    flags += f" --applier {args.applier}" if args.applier != "pipeline" else ""
     text = full_report(runs, provenance(args.seed, flags, time.perf_counter() - start))
     report = out / "full.md"
     with atomic_outputs():  # the report and its data together
