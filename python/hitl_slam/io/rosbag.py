@@ -11,7 +11,7 @@ import logging
 import math
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,14 +21,19 @@ from numpy.typing import NDArray
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
 from hitl_slam.extras import require
-from hitl_slam.geometry import between, compose_rows, invert, wrap
-from hitl_slam.io.textfile import (
-    MAX_ANGLE,
-    MAX_COORDINATE,
-    PathLike,
-    beam_spacing_problem,
-    check_regular_file,
-    sci,
+from hitl_slam.geometry import compose_rows
+from hitl_slam.io.bag_scans import _points, _Scan
+from hitl_slam.io.textfile import MAX_COORDINATE, PathLike, check_regular_file, sci
+from hitl_slam.io.tf_tree import (
+    _checked,
+    _frame_name,
+    _interpolate,
+    _se2,
+    _seconds,
+    _series,
+    _stamps_array,
+    _Transforms,
+    _Tree,
 )
 from hitl_slam.map import Map
 
@@ -48,8 +53,6 @@ _MAGIC = {
     ".db3": (b"SQLite format 3\x00", "a ROS 2 bag (SQLite 3)"),
     ".mcap": (b"\x89MCAP0\r\n", "an MCAP file"),
 }
-_STAMP_LIMIT = 2**62  # [ns] about 146 years: differences of two stamps stay within int64
-_MIN_QUATERNION_NORM = 1e-6
 _DAMAGED = (
     "the bag may be truncated (a recording that did not end cleanly) or damaged; "
     "re-record or repair it (`rosbag reindex` for ROS 1, `ros2 bag reindex` for ROS 2)"
@@ -95,35 +98,6 @@ def is_rosbag(path: PathLike) -> bool:
 
 
 @dataclass
-class _Scan:
-    stamp: int  # [ns]
-    frame: str
-    angle_min: float
-    angle_increment: float
-    range_min: float
-    range_max: float
-    ranges: NDArray[np.float64]
-    intensities: NDArray[np.float64]  # empty: none
-
-
-@dataclass
-class _Transforms:
-    """TransformStamped-like records of one source: ``parent -> child`` at ``stamp``."""
-
-    where: str  # e.g. "/tf" or "topic /odom", for messages
-    stamps: list[int] = field(default_factory=list)
-    parents: list[str] = field(default_factory=list)
-    children: list[str] = field(default_factory=list)
-    values: list[tuple[float, ...]] = field(default_factory=list)  # x y z qx qy qz qw
-
-    def add(self, stamp: int, parent: str, child: str, values: tuple[float, ...]) -> None:
-        self.stamps.append(stamp)
-        self.parents.append(_frame_name(parent))
-        self.children.append(_frame_name(child))
-        self.values.append(values)
-
-
-@dataclass
 class _Contents:
     ros_version: int
     storage: str
@@ -133,11 +107,6 @@ class _Contents:
     tf_static: _Transforms
     odometry: _Transforms | None  # the Odometry topic's poses, when one is read
     odometry_topics: list[str]
-
-
-def _frame_name(name: str) -> str:
-    """tf2 ignores a leading slash (ROS 1's ``/odom`` is ``odom``)."""
-    return name.lstrip("/")
 
 
 def _stamp(header_stamp: Any, bag_time: int) -> int:
@@ -426,237 +395,6 @@ def _odometry_handler(into: _Transforms) -> Callable[[Any, int], None]:
 
 
 # ---------------------------------------------------------------------------------------------
-# Transforms: checked arrays, the frame tree, lookups at the scans' stamps
-
-
-@dataclass
-class _Series:
-    """One edge ``parent -> child``: its samples sorted by stamp (one per stamp, the last)."""
-
-    parent: str
-    stamps: NDArray[np.int64]
-    se2: NDArray[np.float64]  # (S, 3)
-    matrix: NDArray[np.float64]  # (4, 4): the first sample in 3D, for rigid mounts
-    static: bool
-
-    def at(self, when: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-        """SE(2) at ``when`` (linear in x, y; shorter arc in heading), and which stamps lie
-        within the samples' span (a static edge holds at every time)."""
-        if self.static:
-            return np.repeat(self.se2[:1], len(when), axis=0), np.ones(len(when), dtype=bool)
-        return _interpolate(self.stamps, self.se2, when)
-
-
-def _interpolate(
-    stamps: NDArray[np.int64], poses: NDArray[np.float64], when: NDArray[np.int64]
-) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    last = len(stamps) - 1
-    left = np.clip(np.searchsorted(stamps, when, side="right") - 1, 0, last)
-    right = np.minimum(left + 1, last)
-    valid = (when >= stamps[0]) & (when <= stamps[last])
-    span = (stamps[right] - stamps[left]).astype(np.float64)
-    offset = (when - stamps[left]).astype(np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        fraction = np.where(span > 0, offset / np.where(span > 0, span, 1.0), 0.0)
-    fraction = np.where(valid, np.clip(fraction, 0.0, 1.0), 0.0)
-    a, b = poses[left], poses[right]
-    turn = wrap(b[:, 2] - a[:, 2])
-    out = np.stack(
-        [
-            a[:, 0] + fraction * (b[:, 0] - a[:, 0]),
-            a[:, 1] + fraction * (b[:, 1] - a[:, 1]),
-            wrap(a[:, 2] + fraction * turn),
-        ],
-        axis=1,
-    )
-    return out, valid
-
-
-def _checked(name: str, records: _Transforms) -> NDArray[np.float64]:
-    """``(K, 7)`` ``x y z qx qy qz qw`` with unit quaternions, or an InputError for a value
-    that is not finite, a translation beyond the readers' limit, or a zero quaternion."""
-    values = np.array(records.values, dtype=np.float64).reshape(-1, 7)
-    finite = np.asarray(np.isfinite(values).all(axis=1), dtype=bool)
-    safe = np.where(finite[:, None], values, 0.0)
-    norm = np.sqrt(np.sum(np.clip(safe[:, 3:], -1e6, 1e6) ** 2, axis=1))
-    within = np.asarray(
-        (np.abs(safe[:, :3]) <= MAX_COORDINATE).all(axis=1)
-        & (np.abs(safe[:, 3:]) <= 1e6).all(axis=1),
-        dtype=bool,
-    )
-    bad = ~finite | ~within | (norm < _MIN_QUATERNION_NORM)
-    if bad.any():
-        k = int(np.argmax(bad))
-        shown = ", ".join(f"{v!r}" for v in records.values[k])
-        raise InputError(
-            f"{name}: {records.where}: the transform {records.parents[k] or '?'} -> "
-            f"{records.children[k] or '?'} at {_seconds(records.stamps[k]):.9f} s is "
-            f"({shown}): a NaN/inf, a translation beyond {sci(MAX_COORDINATE)} m or a quaternion "
-            "of norm 0 or beyond 1e6; the bag is damaged: re-record it or drop that message"
-        )
-    values[:, 3:] /= norm[:, None]  # tf2 wants unit quaternions; a rounded one is normalized
-    return values
-
-
-def _yaw(q: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Heading of unit quaternions ``(K, 4)`` ``x y z w`` (the rotation's z-y-x yaw)."""
-    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
-def _matrix(row: NDArray[np.float64]) -> NDArray[np.float64]:
-    """4x4 homogeneous transform of ``x y z qx qy qz qw`` (unit quaternion)."""
-    x, y, z, w = row[3:7]
-    out = np.eye(4)
-    out[:3, :3] = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ]
-    out[:3, 3] = row[:3]
-    return out
-
-
-def _se2(rows: NDArray[np.float64]) -> NDArray[np.float64]:
-    return np.stack([rows[:, 0], rows[:, 1], _yaw(rows[:, 3:7])], axis=1)
-
-
-def _series(name: str, records: _Transforms, static: bool) -> dict[tuple[str, str], _Series]:
-    """The records grouped by edge ``(parent, child)``."""
-    if not records.stamps:
-        return {}
-    values = _checked(name, records)
-    stamps = np.array(records.stamps, dtype=object)
-    out: dict[tuple[str, str], _Series] = {}
-    edges: dict[tuple[str, str], list[int]] = {}
-    for k, edge in enumerate(zip(records.parents, records.children, strict=True)):
-        edges.setdefault(edge, []).append(k)
-    for (parent, child), rows in edges.items():
-        if static:
-            rows = rows[-1:]  # a later static transform replaces an earlier one
-        picked = np.array(rows, dtype=np.int64)
-        times = _stamps_array(name, records.where, stamps[picked])
-        order = np.argsort(times, kind="stable")
-        times, chosen = times[order], values[picked[order]]
-        last = np.append(times[1:] != times[:-1], True)  # one sample per stamp: the last
-        out[(parent, child)] = _Series(
-            parent=parent,
-            stamps=times[last],
-            se2=_se2(chosen[last]),
-            matrix=_matrix(chosen[0]),
-            static=static,
-        )
-    return out
-
-
-def _stamps_array(name: str, where: str, stamps: NDArray[Any]) -> NDArray[np.int64]:
-    for stamp in stamps:
-        if not -_STAMP_LIMIT < int(stamp) < _STAMP_LIMIT:
-            raise InputError(
-                f"{name}: {where}: a stamp of {int(stamp)} ns, beyond the year 2116; the bag is "
-                "damaged: re-record it"
-            )
-    return np.array([int(s) for s in stamps], dtype=np.int64)
-
-
-def _seconds(ns: int) -> float:
-    return ns // 1_000_000_000 + (ns % 1_000_000_000) / 1e9
-
-
-class _Tree:
-    """The frames of ``/tf`` and ``/tf_static``: each child's edge to its parent."""
-
-    def __init__(
-        self,
-        name: str,
-        dynamic: dict[tuple[str, str], _Series],
-        static: dict[tuple[str, str], _Series],
-    ) -> None:
-        self.edges: dict[str, _Series] = {}
-        for (parent, child), series in [*dynamic.items(), *static.items()]:
-            known = self.edges.get(child)
-            if known is not None and known.parent != parent:
-                raise InputError(
-                    f"{name}: frame {child!r} has two parents in the transforms, "
-                    f"{known.parent!r} and {parent!r}; a tf tree gives each frame one parent: "
-                    "drop one of the publishers"
-                )
-            self.edges[child] = series  # static after dynamic: /tf_static wins
-
-    @property
-    def frames(self) -> set[str]:
-        return set(self.edges) | {s.parent for s in self.edges.values()}
-
-    def ancestry(self, frame: str) -> list[str]:
-        """``frame``, its parent, ... up to the root (a cycle stops the walk)."""
-        out = [frame]
-        seen = {frame}
-        while (edge := self.edges.get(out[-1])) is not None and edge.parent not in seen:
-            out.append(edge.parent)
-            seen.add(edge.parent)
-        return out
-
-    def path(self, target: str, source: str) -> tuple[list[str], list[str]] | None:
-        """The frames from ``source`` and from ``target`` up to their first common ancestor
-        (excluded), or None when they are not connected."""
-        up_source = self.ancestry(source)
-        up_target = self.ancestry(target)
-        common = next((f for f in up_source if f in set(up_target)), None)
-        if common is None:
-            return None
-        return up_source[: up_source.index(common)], up_target[: up_target.index(common)]
-
-    def connects(self, target: str, source: str) -> bool:
-        return self.path(target, source) is not None
-
-    def se2(
-        self, target: str, source: str, when: NDArray[np.int64]
-    ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-        """``T_target_source`` in SE(2) at ``when``, and where every edge on the way is defined."""
-        found = self.path(target, source)
-        assert found is not None  # callers check connects() first
-        valid = np.ones(len(when), dtype=bool)
-
-        def up(frames: list[str]) -> NDArray[np.float64] | None:
-            nonlocal valid
-            total: NDArray[np.float64] | None = None
-            for frame in frames:
-                step, ok = self.edges[frame].at(when)
-                valid &= ok
-                total = step if total is None else compose_rows(step, total)
-            return total
-
-        from_source, from_target = up(found[0]), up(found[1])
-        if from_target is None:
-            result = from_source
-        elif from_source is None:
-            result = invert(from_target)
-        else:
-            result = between(from_target, from_source)
-        if result is None:
-            result = np.zeros((len(when), 3))
-        return result, valid
-
-    def rigid(self, target: str, source: str) -> NDArray[np.float64] | None:
-        """``T_target_source`` in 3D from each edge's first sample (a rigid mount), or None."""
-        found = self.path(target, source)
-        if found is None:
-            return None
-
-        def up(frames: list[str]) -> NDArray[np.float64]:
-            total = np.eye(4)
-            for frame in frames:
-                total = self.edges[frame].matrix @ total
-            return total
-
-        return np.linalg.inv(up(found[1])) @ up(found[0])
-
-    def only_static(self, target: str, source: str) -> bool:
-        found = self.path(target, source)
-        return found is not None and all(self.edges[f].static for f in found[0] + found[1])
-
-
-# ---------------------------------------------------------------------------------------------
 # The map
 
 
@@ -821,158 +559,3 @@ def _no_odometry(name: str, contents: _Contents, options: BagOptions, tree: _Tre
         f"{base_frame} (its frames: {shown or 'none'}); record the odometry (/odom or /tf), or "
         "name the robot's frames with --odom-frame and --base-frame"
     )
-
-
-def _mount(
-    name: str, tree: _Tree, base_frame: str, laser_frame: str
-) -> tuple[NDArray[np.float64], bool]:
-    """``T_base_laser`` (4x4) and whether it came from /tf_static alone."""
-    if not laser_frame or laser_frame == base_frame:
-        return np.eye(4), True
-    matrix = tree.rigid(base_frame, laser_frame)
-    if matrix is None:
-        frames = sorted(tree.frames)
-        shown = ", ".join(frames[:12]) + (
-            f", ... {len(frames) - 12} more" if len(frames) > 12 else ""
-        )
-        raise InputError(
-            f"{name}: no transform from {base_frame!r} to the laser's frame {laser_frame!r} in "
-            f"/tf_static or /tf (frames: {shown or 'none'}); record the robot's static "
-            "transforms (robot_state_publisher), or pass --base-frame if the robot's frame has "
-            "another name"
-        )
-    if not np.all(np.isfinite(matrix)) or not np.all(np.abs(matrix[:3, 3]) <= MAX_COORDINATE):
-        raise InputError(
-            f"{name}: the laser's mounting {base_frame} -> {laser_frame} is beyond "
-            f"{sci(MAX_COORDINATE)} m; the transforms are damaged: re-record the bag"
-        )
-    static = tree.only_static(base_frame, laser_frame)
-    if not static:
-        _log.info(
-            "%s: %s -> %s is not in /tf_static; its first value in /tf is taken as rigid",
-            name,
-            base_frame,
-            laser_frame,
-        )
-    return matrix, static
-
-
-def _points(
-    name: str,
-    contents: _Contents,
-    scans: list[_Scan],
-    tree: _Tree,
-    base_frame: str,
-    max_range: float | None,
-) -> tuple[
-    NDArray[np.float64],
-    NDArray[np.int64],
-    NDArray[np.float64] | None,
-    dict[str, list[float]],
-]:
-    """Every scan's points in the base frame at once; per-scan counts, per-point intensities
-    (None when no scan has any), and each laser frame's mounting ``(x, y, yaw)``."""
-    topic = contents.scan_topic
-    fields = np.array(
-        [[s.angle_min, s.angle_increment, s.range_min, s.range_max] for s in scans]
-    ).reshape(-1, 4)
-    beams = np.array([len(s.ranges) for s in scans], dtype=np.int64)
-    with np.errstate(invalid="ignore", over="ignore"):
-        limit = fields[:, 3] if max_range is None else np.minimum(fields[:, 3], max_range)
-        last_angle = fields[:, 0] + np.maximum(beams - 1, 0) * fields[:, 1]
-        bad = (
-            ~np.isfinite(fields[:, :3]).all(axis=1)
-            | ~(np.abs(fields[:, 0]) <= MAX_ANGLE)
-            | ~(np.abs(fields[:, 1]) <= MAX_ANGLE)
-            | ~(np.abs(last_angle) <= MAX_ANGLE)
-        )
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise InputError(
-            f"{name}: {topic}: the scan at {_seconds(scans[k].stamp):.9f} s has angle_min "
-            f"{float(fields[k, 0])!r}, angle_increment {float(fields[k, 1])!r}, range_min "
-            f"{float(fields[k, 2])!r} over {beams[k]} beams: a NaN/inf or angles beyond "
-            f"{sci(MAX_ANGLE)} rad; the message is damaged: re-record the bag or drop it"
-        )
-    for k in np.unique(np.stack([beams, fields[:, 1]], axis=1), axis=0, return_index=True)[1]:
-        problem = beam_spacing_problem(int(beams[k]), float(fields[k, 1]))
-        if problem:
-            raise InputError(
-                f"{name}: {topic}: the scan at {_seconds(scans[k].stamp):.9f} s has "
-                f"angle_increment {float(fields[k, 1])!r}: "
-                f"{problem}; the message is damaged: re-record the bag or drop it"
-            )
-    with np.errstate(invalid="ignore"):
-        inverted = fields[:, 2] > limit
-    if inverted.any():
-        k = int(np.argmax(inverted))
-        _log.warning(
-            "%s: %s: %d of %d scans have range_min above range_max%s (first at %.9f s: %g > "
-            "%g m); none of their readings can be a point: check the laser driver's range "
-            "settings",
-            name,
-            topic,
-            int(inverted.sum()),
-            len(scans),
-            "" if max_range is None else " (or --max-range)",
-            _seconds(scans[k].stamp),
-            float(fields[k, 2]),
-            float(limit[k]),
-        )
-    with np.errstate(invalid="ignore"):
-        unusable = ~(limit <= MAX_COORDINATE)  # NaN, inf or absurd: no usable maximum
-    if unusable.any():
-        k = int(np.argmax(unusable))
-        raise InputError(
-            f"{name}: {topic}: the scan at {_seconds(scans[k].stamp):.9f} s has range_max "
-            f"{float(fields[k, 3])!r}, not a usable maximum range; pass --max-range M (the laser's "
-            "maximum range in metres)"
-        )
-    mounts: dict[str, tuple[NDArray[np.float64], bool]] = {}
-    for frame in {s.frame for s in scans}:
-        mounts[frame] = _mount(name, tree, base_frame, frame)
-    total = int(beams.sum())
-    if total == 0:
-        empty = np.zeros((0, 2))
-        return empty, np.zeros(len(scans), dtype=np.int64), None, _mount_table(mounts)
-    r = np.concatenate([s.ranges for s in scans])
-    index = np.arange(total) - np.repeat(np.cumsum(beams) - beams, beams)
-    owner = np.repeat(np.arange(len(scans)), beams)
-    angle = fields[owner, 0] + index * fields[owner, 1]
-    with np.errstate(invalid="ignore"):
-        valid = np.isfinite(r) & (r > 0) & (r >= fields[owner, 2]) & (r <= limit[owner])
-    rv, av, ov = r[valid], angle[valid], owner[valid]
-    local = np.stack([rv * np.cos(av), rv * np.sin(av)], axis=1)
-    points = np.empty_like(local)
-    frame_of = np.array([s.frame for s in scans], dtype=object)[ov]
-    for frame, (matrix, _) in mounts.items():
-        rows = frame_of == frame
-        points[rows] = local[rows] @ matrix[:2, :2].T + matrix[:2, 3]
-    counts = np.bincount(ov, minlength=len(scans)).astype(np.int64)
-    intensities = None
-    if any(len(s.intensities) and len(s.intensities) == len(s.ranges) for s in scans):
-        per_beam = np.concatenate(
-            [
-                s.intensities
-                if len(s.intensities) == len(s.ranges)
-                else np.full(len(s.ranges), np.nan)
-                for s in scans
-            ]
-        )
-        intensities = per_beam[valid]
-    mismatched = sum(1 for s in scans if len(s.intensities) not in (0, len(s.ranges)))
-    if mismatched:
-        _log.info(
-            "%s: %d scans of %s have intensities, but not one per range; theirs are ignored",
-            name,
-            mismatched,
-            topic,
-        )
-    return points, counts, intensities, _mount_table(mounts)
-
-
-def _mount_table(mounts: dict[str, tuple[NDArray[np.float64], bool]]) -> dict[str, list[float]]:
-    return {
-        frame: [float(m[0, 3]), float(m[1, 3]), math.atan2(float(m[1, 0]), float(m[0, 0]))]
-        for frame, (m, _) in mounts.items()
-    }
