@@ -200,12 +200,17 @@ def serve(
 
 
 def open_page(
-    browser: Any, url: str, *, timeout_ms: float = 60_000, init_script: str | None = None
+    browser: Any,
+    url: str,
+    *,
+    timeout_ms: float = 60_000,
+    init_script: str | None = None,
+    viewport: dict[str, int] | None = None,
 ) -> Any:
-    """A new page (own context, 1280 x 800, device pixel ratio 1) on ``url``, after its first
-    frame with the map. Uncaught page errors are collected in ``page.errors``. ``init_script``
-    runs in the page before its own scripts."""
-    context = browser.new_context(viewport=VIEWPORT, device_scale_factor=1)
+    """A new page (own context, ``viewport`` or 1280 x 800, device pixel ratio 1) on ``url``,
+    after its first frame with the map. Uncaught page errors are collected in ``page.errors``.
+    ``init_script`` runs in the page before its own scripts."""
+    context = browser.new_context(viewport=viewport or VIEWPORT, device_scale_factor=1)
     if init_script is not None:
         context.add_init_script(init_script)
     page = context.new_page()

@@ -115,3 +115,84 @@ export function pickLoop(placed, camera, x, y) {
   }
   return best;
 }
+
+const FRAME_PAD = 24; // [CSS px] kept between a framed loop closure and an overlay or the edge
+
+/** Whether the segment a-b (screen px) passes through the rectangle r ({left, top, right,
+ *  bottom}) grown by `pad` (Liang-Barsky clipping). */
+function crosses([ax, ay], [bx, by], r, pad) {
+  let t0 = 0;
+  let t1 = 1;
+  const dx = bx - ax;
+  const dy = by - ay;
+  for (const [p, q] of [
+    [-dx, ax - (r.left - pad)],
+    [dx, r.right + pad - ax],
+    [-dy, ay - (r.top - pad)],
+    [dy, r.bottom + pad - ay],
+  ]) {
+    if (p === 0) {
+      if (q < 0) return false;
+    } else {
+      const t = q / p;
+      if (p < 0) t0 = Math.max(t0, t);
+      else t1 = Math.min(t1, t);
+      if (t0 > t1) return false;
+    }
+  }
+  return true;
+}
+
+/**
+ * Where the view goes to show the loop closure p0-p1 (world) clear of the overlays on the map
+ * (`obstacles`: the legend, the hint, the message, the indicator as {left, top, right, bottom}
+ * in canvas CSS px): {cx, cy, scale} for the camera. Centred on the canvas at the present zoom
+ * when that leaves it whole and clear; otherwise in the middle of the free rectangle of the
+ * canvas (beside or between the overlays) that shows it at the largest scale, zoomed out only
+ * as far as it must be to fit there (never in).
+ */
+export function frameLoop(camera, p0, p1, obstacles, pad = FRAME_PAD) {
+  const { width: w, height: h, scale } = camera;
+  const mx = (p0[0] + p1[0]) / 2;
+  const my = (p0[1] + p1[1]) / 2;
+  const wx = Math.abs(p1[0] - p0[0]);
+  const wy = Math.abs(p1[1] - p0[1]);
+  // Centred on the canvas, as before: the ends relative to the centre.
+  const ex = ((p1[0] - p0[0]) / 2) * scale;
+  const ey = (-(p1[1] - p0[1]) / 2) * scale;
+  const a = [w / 2 - ex, h / 2 - ey];
+  const b = [w / 2 + ex, h / 2 + ey];
+  const inside = (p) => p[0] >= pad && p[0] <= w - pad && p[1] >= pad && p[1] <= h - pad;
+  if (inside(a) && inside(b) && !obstacles.some((r) => crosses(a, b, r, pad))) {
+    return { cx: mx, cy: my, scale };
+  }
+  // The free rectangles: bounded by the canvas edges and the overlays' edges, meeting none.
+  const clampX = (x) => Math.min(w, Math.max(0, x));
+  const clampY = (y) => Math.min(h, Math.max(0, y));
+  const xs = [...new Set([0, w, ...obstacles.flatMap((r) => [clampX(r.left), clampX(r.right)])])].sort((p, q) => p - q);
+  const ys = [...new Set([0, h, ...obstacles.flatMap((r) => [clampY(r.top), clampY(r.bottom)])])].sort((p, q) => p - q);
+  let best = null;
+  for (let i = 0; i < xs.length; i++) {
+    for (let j = i + 1; j < xs.length; j++) {
+      for (let k = 0; k < ys.length; k++) {
+        for (let l = k + 1; l < ys.length; l++) {
+          const [x0, x1, y0, y1] = [xs[i], xs[j], ys[k], ys[l]];
+          const free = (x1 - x0 - 2 * pad) > 0 && (y1 - y0 - 2 * pad) > 0;
+          if (!free) continue;
+          if (obstacles.some((r) => r.left < x1 && r.right > x0 && r.top < y1 && r.bottom > y0)) continue;
+          const s = Math.min(
+            scale,
+            wx > 0 ? (x1 - x0 - 2 * pad) / wx : Infinity,
+            wy > 0 ? (y1 - y0 - 2 * pad) / wy : Infinity,
+          );
+          const area = (x1 - x0) * (y1 - y0);
+          if (!best || s > best.s * (1 + 1e-9) || (s >= best.s * (1 - 1e-9) && area > best.area)) {
+            best = { s, area, x: (x0 + x1) / 2, y: (y0 + y1) / 2 };
+          }
+        }
+      }
+    }
+  }
+  if (!best) return { cx: mx, cy: my, scale };
+  return { cx: mx - (best.x - w / 2) / best.s, cy: my + (best.y - h / 2) / best.s, scale: best.s };
+}

@@ -9,7 +9,7 @@ import { PendingPair, sigmaForScale } from "./correction.js";
 import { comparisonText, placeStretches, stretchLines, stretchList, verdictText } from "./doubtful.js";
 import { installHooks } from "./hooks.js";
 import { attachInput } from "./interaction.js";
-import { ALIGNED_LOOPS, loopLines, pickLoop, placeLoops } from "./loops.js";
+import { ALIGNED_LOOPS, frameLoop, loopLines, pickLoop, placeLoops } from "./loops.js";
 import { overlay } from "./overlay.js";
 import { placeIndexed } from "./se2.js";
 import { Ui } from "./ui.js";
@@ -358,7 +358,11 @@ class App {
     }
   }
 
-  /** Keys n / N: select the next (previous) loop closure and centre the view on it. */
+  /**
+   * Keys n / N: select the next (previous) loop closure and bring it into view, whole and clear
+   * of the legend and the other overlays on the map (loops.js frameLoop): centred, unless an
+   * overlay or the edge is in the way; zoomed out only when it must be.
+   */
   stepLoop(direction) {
     if (!this.loops || this.loops.pairs.length === 0) {
       this.hint("this map has no loop closures (only a map the front end built has them)");
@@ -370,10 +374,31 @@ class App {
     this.selectLoop(k);
     const c = this.placedLoops.find((p) => p.index === k);
     if (c) {
-      this.camera.cx = (c.p0[0] + c.p1[0]) / 2;
-      this.camera.cy = (c.p0[1] + c.p1[1]) / 2;
+      const { cx, cy, scale } = frameLoop(this.camera, c.p0, c.p1, this.overlayRects());
+      this.camera.cx = cx;
+      this.camera.cy = cy;
+      this.camera.scale = scale;
+      this.refreshIndicator(); // sigma_h follows the zoom
       this.requestRender();
     }
+  }
+
+  /** The boxes of what lies over the map (legend, hint, message, indicator, help) as shown,
+   *  in canvas CSS px. */
+  overlayRects() {
+    const canvas = this.canvas.getBoundingClientRect();
+    return ["legend", "hint", "message", "indicator", "help"]
+      .map((id) => document.getElementById(id))
+      .filter((el) => el && !el.hidden && el.getClientRects().length > 0)
+      .map((el) => {
+        const r = el.getBoundingClientRect();
+        return {
+          left: r.left - canvas.left,
+          top: r.top - canvas.top,
+          right: r.right - canvas.left,
+          bottom: r.bottom - canvas.top,
+        };
+      });
   }
 
   /** Key c: show or hide the loop closures. */

@@ -46,8 +46,12 @@ export class Ui {
     el.textContent = "";
   }
 
+  /** The map's name in the top bar; its tooltip holds it whole (a long one ends in an ellipsis)
+   *  and what the served poses are (setMapInfo). */
   setName(name, session) {
-    $("map-name").textContent = session ? `${name} - ${session}` : name;
+    const el = $("map-name");
+    el.textContent = session ? `${name} - ${session}` : name;
+    el.title = [el.textContent, el.dataset.description].filter(Boolean).join("\n");
     document.title = `hitl-slam: ${name}`;
   }
 
@@ -92,7 +96,10 @@ export class Ui {
     $("loop-buttons").hidden = !has;
     $("legend-loops").hidden = !has;
     if (!has) return;
-    $("st-loops").textContent = summary.text;
+    const status = $("st-loops");
+    if (status.dataset.title === undefined) status.dataset.title = status.title;
+    status.textContent = summary.text;
+    status.title = `${status.dataset.title}\n${summary.text}`; // all of it, when it is cut
     const button = $("btn-loop-toggle");
     if (button.dataset.title === undefined) button.dataset.title = button.title;
     button.disabled = summary.selected === null || summary.aligned;
@@ -106,7 +113,9 @@ export class Ui {
    * the doubtful stretches, one a line (the verdict's tooltip; "": none, no legend entry).
    */
   setMapInfo(description, verdict, comparison, stretches) {
-    $("map-name").title = description || "";
+    const name = $("map-name");
+    name.dataset.description = description || "";
+    name.title = [name.textContent, description].filter(Boolean).join("\n");
     for (const [id, text] of [
       ["st-verdict", verdict],
       ["st-compare", comparison],
