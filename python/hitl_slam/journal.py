@@ -64,8 +64,6 @@ from __future__ import annotations
 
 import contextlib
 import enum
-import hashlib
-import io
 import json
 import logging
 import os
@@ -75,7 +73,6 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -83,7 +80,25 @@ from numpy.typing import NDArray
 
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import DamagedSession, InputError
-from hitl_slam.io.atomic import fsync_directory, sweep_once
+from hitl_slam.io.atomic import sweep_once
+from hitl_slam.journal_encoding import decode_array, encode_array, encode_payload
+from hitl_slam.journal_schema import (
+    _UPGRADE,
+    APPLICATION_ID,
+    MEMORY,
+    SCHEMA_VERSION,
+    _configure,
+    _connect,
+    _corrupt,
+    _event_digest,
+    _label,
+    _link_no_clobber,
+    _map_from_rows,
+    _non_finite,
+    _unlink_quietly,
+    _write_header,
+    row_digest,
+)
 from hitl_slam.map import Map
 
 __all__ = [
@@ -101,57 +116,6 @@ __all__ = [
 ]
 
 _log = logging.getLogger(__name__)
-
-SCHEMA_VERSION = 2
-"""The schema this module writes; it reads this one and older ones (1: without checksums)."""
-
-APPLICATION_ID = 0x4849544C
-"""``PRAGMA application_id`` of a session file: the bytes "HITL"."""
-
-MEMORY = ":memory:"
-
-_SCHEMA = """
-CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE map (
-    id INTEGER PRIMARY KEY CHECK (id = 1),
-    name TEXT NOT NULL,
-    source TEXT,
-    anchor INTEGER NOT NULL,
-    metadata TEXT NOT NULL,
-    sha256 TEXT
-);
-CREATE TABLE map_arrays (name TEXT PRIMARY KEY, npy BLOB NOT NULL, sha256 TEXT);
-CREATE TABLE config (id INTEGER PRIMARY KEY CHECK (id = 1), json TEXT NOT NULL, sha256 TEXT);
-CREATE TABLE events (
-    seq INTEGER PRIMARY KEY,
-    time REAL NOT NULL,
-    kind TEXT NOT NULL,
-    payload TEXT NOT NULL,
-    poses BLOB,
-    sha256 TEXT
-);
-"""
-
-# Schema 1 -> 2: the checksum columns (filled in the same transaction, see Journal._upgrade).
-_UPGRADE = (
-    "ALTER TABLE map ADD COLUMN sha256 TEXT",
-    "ALTER TABLE map_arrays ADD COLUMN sha256 TEXT",
-    "ALTER TABLE config ADD COLUMN sha256 TEXT",
-    "ALTER TABLE events ADD COLUMN sha256 TEXT",
-)
-
-_REQUIRED_ARRAYS = (
-    "poses",
-    "points",
-    "offsets",
-    "edges",
-    "measurements",
-    "information",
-    "information_source",
-)
-_OPTIONAL_ARRAYS = ("normals", "timestamps")
-_FLOAT_ARRAYS = ("poses", "points", "measurements", "information", "normals", "timestamps")
-_METADATA_PREFIX = "metadata/"
 
 
 class EventKind(enum.Enum):
@@ -178,258 +142,6 @@ class Event:
     kind: EventKind
     payload: dict[str, Any]
     poses: NDArray[np.float64] | None = None
-
-
-def encode_array(array: NDArray[Any]) -> bytes:
-    """``array`` as the bytes of a ``.npy`` file (exact: dtype, shape and every bit kept)."""
-    buffer = io.BytesIO()
-    np.save(buffer, np.ascontiguousarray(array), allow_pickle=False)
-    return buffer.getvalue()
-
-
-def decode_array(blob: bytes) -> NDArray[Any]:
-    """The array stored by :func:`encode_array`.
-
-    Raises:
-        ValueError: ``blob`` is not the bytes of a ``.npy`` file without objects.
-    """
-    if not isinstance(blob, bytes):
-        raise ValueError(f"a stored array is a {type(blob).__name__}, not bytes")
-    try:
-        array: NDArray[Any] = np.load(io.BytesIO(blob), allow_pickle=False)
-    except (ValueError, OSError, EOFError, TypeError, OverflowError, MemoryError) as exc:
-        raise ValueError(f"not a .npy array ({exc})") from None
-    if not isinstance(array, np.ndarray):  # pragma: no cover - np.load of .npy bytes
-        raise ValueError("not a .npy array")
-    return array
-
-
-_EXACT = 10**15  # below 2^53: integers, and their quotients' floors, are exact in float64
-_BLANK = 0  # a byte no JSON text holds: the padding dropped from the fixed-width cells
-_SMALL = 10**4  # numbers below it are looked up in a table of their digits
-_small_digits: NDArray[np.uint8] | None = None
-
-
-def _digits(values: NDArray[Any], width: int) -> NDArray[np.uint8]:
-    """``(M, width)`` the decimal digits of ``values`` (M,), integers of magnitude below
-    :data:`_EXACT`, right-aligned, blank before them; a "-" left of a negative number's."""
-    # Below 2^53 the floor of a float quotient of integers is the integer quotient.
-    magnitude = np.abs(values.astype(np.float64))
-    scale = 10.0 ** np.arange(width - 1, -1, -1)  # the power of ten each column holds
-    leading = np.floor(magnitude[:, None] / scale)  # the number's digits down to each column
-    chars: NDArray[np.uint8] = (leading - 10.0 * np.floor(leading / 10.0) + ord("0")).astype(
-        np.uint8
-    )
-    blank = leading == 0.0
-    blank[:, -1] = False  # a zero is "0"
-    chars[blank] = _BLANK
-    negative = np.flatnonzero(values < 0)
-    if negative.size:
-        first = blank[negative].sum(axis=1)  # the column of the first digit
-        chars[negative, first - 1] = ord("-")
-    return chars
-
-
-def _integers_json(array: NDArray[Any]) -> str:
-    """``json.dumps(array.tolist())`` of a 1-D or 2-D integer array, the same text built with
-    numpy (digits in fixed-width cells, the padding dropped) instead of a Python list per row:
-    an interpretation's observation rows (tens of thousands) cost well under a millisecond, not
-    the lists, their encoding and the garbage collections they set off."""
-    global _small_digits
-    if array.dtype.kind not in "iu" or array.ndim not in (1, 2) or array.size == 0:
-        return json.dumps(array.tolist())
-    low, high = int(array.min()), int(array.max())
-    if low <= -_EXACT or high >= _EXACT:
-        return json.dumps(array.tolist())
-    flat = array.ravel()  # row-major, the order of tolist()
-    width = max(len(str(low)), len(str(high)))
-    if low >= 0 and high < _SMALL:  # pose and point indices, as a rule
-        if _small_digits is None:
-            _small_digits = _digits(np.arange(_SMALL), len(str(_SMALL - 1)))
-        chars = _small_digits[flat][:, _small_digits.shape[1] - width :]
-    else:
-        chars = _digits(flat, width)
-    # One cell per number: its digits then ", ".
-    columns = 1 if array.ndim == 1 else array.shape[1]
-    cells = np.empty((flat.size // columns, columns, width + 2), dtype=np.uint8)
-    cells[:, :, :width] = chars.reshape(-1, columns, width)
-    cells[:, :, width] = ord(",")
-    cells[:, :, width + 1] = ord(" ")
-    if array.ndim == 2:
-        # A row: "[" + its cells, the last one closed by "], " instead of ", ".
-        rows = np.empty((cells.shape[0], 1 + columns * (width + 2) + 1), dtype=np.uint8)
-        rows[:, 0] = ord("[")
-        rows[:, 1:-1] = cells.reshape(cells.shape[0], -1)
-        rows[:, -3:] = (ord("]"), ord(","), ord(" "))
-        text = rows.ravel()
-    else:
-        text = cells.ravel()
-    body = text[text != _BLANK][:-2].tobytes().decode("ascii")
-    return f"[{body}]"
-
-
-def encode_payload(payload: dict[str, Any]) -> str:
-    """An event's payload as JSON: ``json.dumps(payload)``, except that a value of a dict may
-    also be a numpy integer array, written as the JSON of its ``tolist()`` (the same text)."""
-
-    def encode(value: Any) -> str:
-        if isinstance(value, np.ndarray):
-            return _integers_json(value)
-        if isinstance(value, dict) and value and all(isinstance(k, str) for k in value):
-            items = ", ".join(f"{json.dumps(k)}: {encode(v)}" for k, v in value.items())
-            return f"{{{items}}}"
-        return json.dumps(value)
-
-    return encode(payload)
-
-
-def row_digest(table: str, *values: Any) -> str:
-    """SHA-256 (hex) of one row's values with their SQLite types (None, int, float, str, bytes),
-    each length-prefixed, so a changed byte or type anywhere in the row changes it."""
-    h = hashlib.sha256(table.encode())
-    for value in values:
-        if value is None:
-            token = b"N"
-        elif isinstance(value, bytes):
-            token = b"B" + value
-        elif isinstance(value, str):
-            token = b"S" + value.encode("utf-8", "surrogatepass")
-        elif isinstance(value, int):
-            token = b"I" + str(value).encode()
-        elif isinstance(value, float):
-            token = b"F" + value.hex().encode()
-        else:
-            raise TypeError(f"not an SQLite value: {type(value).__name__}")
-        h.update(len(token).to_bytes(8, "little"))
-        h.update(token)
-    return h.hexdigest()
-
-
-def _label(path: str | os.PathLike[str] | None) -> str:
-    return MEMORY if path is None else os.fspath(path)
-
-
-def _corrupt(where: str, what: str, first_bad_seq: int | None = None) -> DamagedSession:
-    return DamagedSession(where, what, first_bad_seq)
-
-
-def _configure(connection: sqlite3.Connection) -> None:
-    connection.execute("PRAGMA journal_mode=DELETE")
-    connection.execute("PRAGMA synchronous=FULL")
-    connection.execute("PRAGMA foreign_keys=ON")
-
-
-def _json_default(value: Any) -> Any:
-    # Map metadata is free-form: numpy values become plain ones, anything else its str().
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return str(value)
-
-
-def _split_metadata(metadata: dict[str, Any]) -> tuple[str, list[tuple[str, bytes]]]:
-    """Metadata as JSON, except top-level arrays, which are kept exactly as .npy blobs (e.g. the
-    pose covariances a .covars file carries)."""
-    plain = {k: v for k, v in metadata.items() if not isinstance(v, np.ndarray)}
-    arrays = [
-        (_METADATA_PREFIX + str(k), encode_array(v))
-        for k, v in metadata.items()
-        if isinstance(v, np.ndarray) and v.dtype != object
-    ]
-    plain.update(
-        {k: v for k, v in metadata.items() if isinstance(v, np.ndarray) and v.dtype == object}
-    )
-    return json.dumps(plain, default=_json_default, sort_keys=True), arrays
-
-
-def _non_finite(map: Map) -> str | None:
-    """The first map array holding NaN or inf, or an edge naming no pose (None: all good)."""
-    for name in _FLOAT_ARRAYS:
-        array = getattr(map, name)
-        if array is not None and not np.isfinite(array).all():
-            return f"the map array {name!r} holds NaN or inf"
-    if map.edges.size and (map.edges.min() < 0 or map.edges.max() >= map.num_poses):
-        return "an edge of the map names a pose that does not exist"
-    return None
-
-
-def _write_header(connection: sqlite3.Connection, map: Map, config: Config) -> None:
-    from hitl_slam import __version__
-
-    # One statement at a time: executescript() would commit the caller's open transaction.
-    for statement in _SCHEMA.split(";"):
-        if statement.strip():
-            connection.execute(statement)
-    connection.execute(f"PRAGMA application_id={APPLICATION_ID}")
-    connection.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
-    connection.executemany(
-        "INSERT INTO meta(key, value) VALUES (?, ?)",
-        [("created_by", f"hitl-slam {__version__}"), ("created", repr(time.time()))],
-    )
-    metadata, metadata_arrays = _split_metadata(map.metadata)
-    source = None if map.source is None else str(map.source)
-    connection.execute(
-        "INSERT INTO map(id, name, source, anchor, metadata, sha256) VALUES (1, ?, ?, ?, ?, ?)",
-        (
-            str(map.name),
-            source,
-            int(map.anchor),
-            metadata,
-            row_digest("map", str(map.name), source, int(map.anchor), metadata),
-        ),
-    )
-    arrays: list[tuple[str, bytes]] = [
-        (name, encode_array(getattr(map, name))) for name in _REQUIRED_ARRAYS
-    ]
-    arrays += [
-        (name, encode_array(getattr(map, name)))
-        for name in _OPTIONAL_ARRAYS
-        if getattr(map, name) is not None
-    ]
-    arrays += metadata_arrays
-    connection.executemany(
-        "INSERT INTO map_arrays(name, npy, sha256) VALUES (?, ?, ?)",
-        [(name, blob, row_digest("map_arrays", name, blob)) for name, blob in arrays],
-    )
-    text = json.dumps(config.to_dict())
-    connection.execute(
-        "INSERT INTO config(id, json, sha256) VALUES (1, ?, ?)",
-        (text, row_digest("config", text)),
-    )
-
-
-def _event_digest(
-    seq: Any, stamp: Any, kind: Any, payload: Any, poses: Any
-) -> str:  # the event row's checksum
-    return row_digest("events", seq, stamp, kind, payload, poses)
-
-
-def _unlink_quietly(path: str) -> None:
-    # A cleanup must never replace the error being reported (e.g. EROFS on a read-only disk).
-    with contextlib.suppress(OSError):
-        os.unlink(path)
-
-
-def _link_no_clobber(temp: str, target: str) -> None:
-    """Move ``temp`` to ``target`` unless ``target`` exists (atomically where links work)."""
-    try:
-        os.link(temp, target)
-    except FileExistsError:
-        raise
-    except OSError:
-        # A file system without hard links: the existence check and the rename are two steps.
-        if os.path.exists(target):
-            raise FileExistsError(target) from None
-        os.replace(temp, target)
-    else:
-        _unlink_quietly(temp)
-    fsync_directory(os.path.dirname(target))
-
-
-def _connect(where: str) -> sqlite3.Connection:
-    uri = Path(where).resolve().as_uri() + "?mode=rw"
-    return sqlite3.connect(uri, uri=True, isolation_level=None, check_same_thread=False)
 
 
 class Journal:
@@ -631,67 +343,7 @@ class Journal:
                 ).fetchall()
         except (sqlite3.Error, UnicodeDecodeError) as exc:
             raise _corrupt(where, str(exc)) from None
-        if row is None:
-            raise _corrupt(where, "no map")
-        if checked and row[4] != row_digest("map", *row[:4]):
-            raise _corrupt(where, "the map's name or metadata does not match its checksum")
-        blobs: dict[str, Any] = {}
-        for item in stored:
-            if not isinstance(item[0], str):
-                raise _corrupt(where, f"a map array has the name {item[0]!r}")
-            if checked and item[2] != row_digest("map_arrays", item[0], item[1]):
-                raise _corrupt(where, f"the map array {item[0]!r} does not match its checksum")
-            blobs[item[0]] = item[1]
-        missing = [name for name in _REQUIRED_ARRAYS if name not in blobs]
-        if missing:
-            raise _corrupt(where, f"map arrays missing: {', '.join(missing)}")
-        try:
-            arrays = {name: decode_array(blob) for name, blob in blobs.items()}
-            metadata = json.loads(row[3])
-        except (ValueError, TypeError, RecursionError) as exc:
-            raise _corrupt(where, f"unreadable map data: {exc}") from None
-        if not isinstance(metadata, dict):
-            metadata = {}
-        for name, array in arrays.items():
-            if name.startswith(_METADATA_PREFIX):
-                metadata[name[len(_METADATA_PREFIX) :]] = array
-        try:
-            if not isinstance(row[2], int) or not isinstance(row[0], str):
-                raise ValueError("the map's name or anchor has the wrong type")
-            for name, kinds in (
-                ("poses", "fiu"),
-                ("points", "fiu"),
-                ("measurements", "fiu"),
-                ("information", "fiu"),
-                ("offsets", "iu"),
-                ("edges", "iu"),
-                ("information_source", "iu"),
-                ("normals", "fiu"),
-                ("timestamps", "fiu"),
-            ):
-                if name in arrays and arrays[name].dtype.kind not in kinds:
-                    raise ValueError(f"the map array {name!r} has the wrong type")
-            map = Map(
-                poses=arrays["poses"],
-                points=arrays["points"],
-                offsets=arrays["offsets"],
-                edges=arrays["edges"],
-                measurements=arrays["measurements"],
-                information=arrays["information"],
-                information_source=arrays["information_source"],
-                normals=arrays.get("normals"),
-                timestamps=arrays.get("timestamps"),
-                anchor=row[2],
-                name=row[0],
-                source=None if row[1] is None else str(row[1]),
-                metadata=metadata,
-            )
-        except Exception as exc:  # any malformed array is a damaged file
-            raise _corrupt(where, f"the stored map is malformed: {exc}") from None
-        problem = _non_finite(map)
-        if problem is not None:
-            raise _corrupt(where, problem)
-        return map
+        return _map_from_rows(where, row, stored, checked)
 
     def read_config(self) -> Config:
         """The session's configuration (checksum verified)."""
