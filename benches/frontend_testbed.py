@@ -38,6 +38,9 @@ applies to every log given it fits, and `raw` is always run, as the baseline of 
                     (the corrected logs) the corrected poses themselves as the odometry: what
                     the matching alone leaves against the reference, which is another SLAM
                     system's estimate, not ground truth (a diagnostic, no target)
+    A+B             two variants applied left to right (every3+bias3: every third scan,
+                    then the heading bias on what is left: big steps and a drifting heading
+                    at once, as on a log recorded at a low rate with poor wheels)
     ros1, ros2      the unmodified scans and odometry written as a ROS 1 bag / a ROS 2 bag
                     (sqlite3) with rosbags' writers (/tf odom -> base_link, the laser at
                     base_link), read back with load_map; a log
@@ -201,6 +204,12 @@ def make_variant(m: Map, variant: str) -> tuple[Map, NDArray[np.int64], dict[str
     holds, and notes on what changed."""
     from hitl_slam.sim.odometry import NO_NOISE, HeadingDrift, ScaleError, odometry
 
+    if "+" in variant:
+        # A combination, applied left to right (every3+bias3: every third scan, then the bias).
+        first, rest = variant.split("+", 1)
+        out, keep, notes = make_variant(m, first)
+        out, inner, more = make_variant(out, rest)
+        return out, keep[inner], {**notes, **more}
     n = m.num_poses
     everything = np.arange(n, dtype=np.int64)
     if variant == "raw":
@@ -781,6 +790,9 @@ def _names(text: str, known: Sequence[str], what: str) -> list[str]:
         if name in ("noise5mm", "damage") and what == "variant":
             family = NOISE_SEEDS if name == "noise5mm" else DAMAGE_SEEDS
             out += [v for v in family if v not in out]
+            continue
+        if "+" in name and all(part in known for part in name.split("+")):
+            out.append(name)
             continue
         if name not in known:
             raise SystemExit(f"unknown {what} {name!r}; known: {', '.join(known)}")

@@ -47,6 +47,20 @@ def test_every_k_keeps_those_scans_untouched(fr079: Any) -> None:
             assert np.array_equal(mine, base.points[base.offsets[j] : base.offsets[j + 1]])
 
 
+def test_a_combination_applies_its_parts_left_to_right(fr079: Any) -> None:
+    base, _, _ = fr079
+    out, keep, _ = bed.make_variant(base, "every3+bias3")
+    thinned, kept, _ = bed.make_variant(base, "every3")
+    biased, inner, _ = bed.make_variant(thinned, "bias3")
+    assert keep.tolist() == kept[inner].tolist() == list(range(0, SCANS, 3))
+    np.testing.assert_array_equal(out.poses, biased.poses)
+    np.testing.assert_array_equal(out.points, thinned.points)
+    assert not np.allclose(out.poses, base.poses[keep])
+    assert bed._names("every3+bias3,raw", list(bed.VARIANTS), "variant") == ["every3+bias3", "raw"]
+    with pytest.raises(SystemExit, match="unknown variant"):
+        bed._names("every3+nonsense", list(bed.VARIANTS), "variant")
+
+
 def test_heading_bias_and_scale_change_only_the_odometry_steps(fr079: Any) -> None:
     base, _, _ = fr079
     z = relative_motions(base.poses)
