@@ -70,6 +70,25 @@ def _joined(thread: Any) -> None:
         thread.join()
 
 
+def next_correction(
+    session: Session, drawer: Any, pairs: list[tuple[int, int]]
+) -> tuple[float, str] | None:
+    """The next revisit's drawing applied to ``session``, timed (``Session.apply`` only): its
+    time [s] and a note; revisits whose drawing is refused are skipped (taken from ``pairs``);
+    None when none is left."""
+    while pairs:
+        i, j = pairs.pop(0)
+        try:
+            drawn = drawer.draw(np.array(session.poses), i, j)
+            t = time.perf_counter()
+            applied = session.apply(drawn)
+        except (CorrectionRejected, ValueError):
+            continue
+        took = time.perf_counter() - t
+        return took, f"{applied.iterations} iterations, revisit {i} / {j}"
+    return None
+
+
 def reopen_in_new_process(state: Path) -> int:
     """The child of ``--new-process``: the session reopened in a process of its own, as
     ``hitl-slam serve intel.hitl`` has it (prepared, then drawings); prints each correction's
@@ -84,16 +103,8 @@ def reopen_in_new_process(state: Path) -> int:
     out: list[tuple[float, str]] = []
     with Session.open(path) as session:
         _joined(session.prepare())
-        while pairs and len(out) < count:
-            i, j = pairs.pop(0)
-            try:
-                drawn = drawer.draw(np.array(session.poses), i, j)
-                t = time.perf_counter()
-                applied = session.apply(drawn)
-            except (CorrectionRejected, ValueError):
-                continue
-            took = time.perf_counter() - t
-            out.append((took, f"{applied.iterations} iterations, revisit {i} / {j}"))
+        while len(out) < count and (timed := next_correction(session, drawer, pairs)):
+            out.append(timed)
     print(json.dumps(out))
     return 0
 
@@ -127,19 +138,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows: list[tuple[str, float, str]] = []
 
     def correct(session: Session, what: str) -> bool:
-        while pairs:
-            i, j = pairs.pop(0)
-            try:
-                drawn = drawer.draw(np.array(session.poses), i, j)
-                t = time.perf_counter()
-                out = session.apply(drawn)
-            except (CorrectionRejected, ValueError):
-                continue
-            took = time.perf_counter() - t
-            rows.append((what, took, f"{out.iterations} iterations, revisit {i} / {j}"))
-            log(f"{what}: {1e3 * took:.0f} ms ({out.iterations} iterations)")
-            return True
-        return False
+        timed = next_correction(session, drawer, pairs)
+        if timed is None:
+            return False
+        rows.append((what, *timed))
+        log(f"{what}: {1e3 * timed[0]:.0f} ms ({timed[1]})")
+        return True
 
     timings: dict[str, float] = {}
 
