@@ -29,10 +29,11 @@ from hitl_slam.io.covars import write_covars
 from hitl_slam.map import Map
 from hitl_slam.metrics import inconsistency
 from hitl_slam.session import Session
-from hitl_slam.sim import Scenario, SimulatedHuman, lost_poses_room
+from hitl_slam.sim import Scenario, lost_poses_room
 from hitl_slam.web import SessionHost, create_app
 from hitl_slam.web.host import NothingToDo
 from hitl_slam.web.server import open_session, session_path_for
+from web_support import person_drawings
 
 with warnings.catch_warnings():
     # starlette 1.x asks for httpx2 behind its TestClient; httpx (installed) serves the same.
@@ -54,15 +55,7 @@ def room() -> Scenario:
 @pytest.fixture(scope="module")
 def drawings(room: Scenario) -> list[Correction]:
     """Three drawings the simulated person makes, each on the map as the previous left it."""
-    human = SimulatedHuman(room, 0)
-    out = []
-    with Session.new(room.map) as session:
-        for _ in range(3):
-            drawn = human.next_correction(session.poses)
-            assert drawn is not None
-            session.apply(drawn)
-            out.append(drawn)
-    return out
+    return person_drawings(room, 0, 3)[0]
 
 
 def as_json(drawn: Correction) -> dict[str, Any]:

@@ -19,12 +19,15 @@ from hitl_slam.corrections_file import write_corrections
 from hitl_slam.session import Session
 from hitl_slam.sim import SimulatedHuman, lost_poses_room
 from web_support import (
+    DOUBTFUL_FRONT_END,
+    DOUBTFUL_STRETCHES,
     Server,
     canvas_pixels,
     changed_fraction,
     chromium,
     draw_segment,
     open_page,
+    person_drawings,
     save_artifact,
     serve,
     to_client,
@@ -390,16 +393,7 @@ def test_wheel_zooms_about_the_cursor_and_drag_pans(browser: Any, shared_demo: S
 
 def test_save_and_journal_step(tmp_path: Path, browser: Any) -> None:
     # A corrections file of the human's first two drawings, and where they lead.
-    scenario = lost_poses_room(0)
-    human = SimulatedHuman(scenario, 0)
-    steps: list[Correction] = []
-    with Session.new(scenario.map) as reference:
-        for _ in range(2):
-            drawn = human.next_correction(reference.poses)
-            assert drawn is not None
-            reference.apply(drawn)
-            steps.append(drawn)
-        expected = reference.poses.copy()
+    steps, expected = person_drawings(lost_poses_room(0), 0, 2)
     journal = tmp_path / "fixes.jsonl"
     write_corrections(journal, steps)
 
@@ -534,24 +528,11 @@ def test_the_front_ends_doubtful_stretches_are_drawn_and_said(tmp_path: Path, br
     import dataclasses
 
     room = lost_poses_room(0).map
-    stretches = [
-        {"first": 40, "last": 90, "reason": "match failed"},
-        {"first": 300, "last": 330, "reason": "contradicts the loop closures"},
-    ]
+    stretches = DOUBTFUL_STRETCHES
     m = dataclasses.replace(
         room,
         name="room (hitl-slam front end)",
-        metadata={
-            **room.metadata,
-            "front_end": "hitl-slam",
-            "front_end_verdict": "doubtful",
-            "front_end_doubtful": stretches,
-            "trajectory_comparison": {
-                "trajectory": "slam (map -> base_link)",
-                "bag_slam_m2": 12.5,
-                "front_end_m2": 9.25,
-            },
-        },
+        metadata={**room.metadata, "front_end": "hitl-slam", **DOUBTFUL_FRONT_END},
     )
     path = tmp_path / "room.hitl"
     Session.new(m, str(path)).close()

@@ -20,9 +20,17 @@ import pytest
 from hitl_slam.corrections_file import write_corrections
 from hitl_slam.map import Map
 from hitl_slam.session import Session
-from hitl_slam.sim import SimulatedHuman, lost_poses_room
+from hitl_slam.sim import lost_poses_room
 from loop_support import FALSE_LOOP, map_with_loops
-from web_support import Server, chromium, open_page, save_artifact, serve
+from web_support import (
+    DOUBTFUL_FRONT_END,
+    Server,
+    chromium,
+    open_page,
+    person_drawings,
+    save_artifact,
+    serve,
+)
 
 WIDE = {"width": 1400, "height": 900}
 # The false loop closure, the longest, is turned to run at this angle (degrees, world): from the
@@ -53,33 +61,10 @@ def _room(folder: Path) -> Path:
     i, j = m.edges[-1]  # the false loop closure, the last edge
     d = m.poses[j, :2] - m.poses[i, :2]
     m = _turned(m, np.radians(LOOP_ANGLE) - np.arctan2(d[1], d[0]))
-    m = dataclasses.replace(
-        m,
-        metadata={
-            **m.metadata,
-            "front_end_verdict": "doubtful",
-            "front_end_doubtful": [
-                {"first": 40, "last": 90, "reason": "match failed"},
-                {"first": 300, "last": 330, "reason": "contradicts the loop closures"},
-            ],
-            "trajectory_comparison": {
-                "trajectory": "slam (map -> base_link)",
-                "bag_slam_m2": 12.5,
-                "front_end_m2": 9.25,
-            },
-        },
-    )
+    m = dataclasses.replace(m, metadata={**m.metadata, **DOUBTFUL_FRONT_END})
     path = folder / "room-loops.hitl"
     Session.new(m, str(path)).close()
-    scenario = lost_poses_room(0)
-    human = SimulatedHuman(scenario, 0)
-    steps = []
-    with Session.new(scenario.map) as reference:
-        for _ in range(2):
-            drawn = human.next_correction(reference.poses)
-            assert drawn is not None
-            reference.apply(drawn)
-            steps.append(drawn)
+    steps, _ = person_drawings(lost_poses_room(0), 0, 2)
     write_corrections(folder / "fixes.jsonl", steps)
     return path
 

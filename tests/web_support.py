@@ -38,6 +38,22 @@ CHROMIUM_ARGS = [
     "--no-first-run",
 ]
 VIEWPORT = {"width": 1280, "height": 800}
+
+# What a front end that doubts its map says of it in the map's metadata (docs/FORMATS.md): the
+# verdict, two stretches, and the comparison with a bag's own SLAM trajectory.
+DOUBTFUL_STRETCHES = (
+    {"first": 40, "last": 90, "reason": "match failed"},
+    {"first": 300, "last": 330, "reason": "contradicts the loop closures"},
+)
+DOUBTFUL_FRONT_END = {
+    "front_end_verdict": "doubtful",
+    "front_end_doubtful": [dict(s) for s in DOUBTFUL_STRETCHES],
+    "trajectory_comparison": {
+        "trajectory": "slam (map -> base_link)",
+        "bag_slam_m2": 12.5,
+        "front_end_m2": 9.25,
+    },
+}
 _LISTENING = re.compile(r"hitl-slam serve: listening on (\S+)")
 _SERVE = "import sys; from hitl_slam.cli import main; sys.exit(main())"
 
@@ -307,3 +323,20 @@ def wait_until(predicate: Any, timeout: float = 10.0, interval: float = 0.05) ->
             return True
         time.sleep(interval)
     return bool(predicate())
+
+
+def person_drawings(scenario: Any, seed: int, count: int) -> tuple[list[Any], NDArray[np.float64]]:
+    """The simulated person's first ``count`` drawings on ``scenario``'s map (numpy seed
+    ``seed``), each made on the map as the ones before left it, and the poses they lead to."""
+    from hitl_slam.session import Session
+    from hitl_slam.sim import SimulatedHuman
+
+    human = SimulatedHuman(scenario, seed)
+    out = []
+    with Session.new(scenario.map) as session:
+        for _ in range(count):
+            drawn = human.next_correction(session.poses)
+            assert drawn is not None
+            session.apply(drawn)
+            out.append(drawn)
+        return out, session.poses.copy()
