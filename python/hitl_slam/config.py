@@ -191,38 +191,21 @@ class Config:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Config:
-        """The configuration ``data`` (:meth:`to_dict`) describes. A key of :data:`_REMOVED`
-        (a session saved before that option was deleted) is dropped where it holds the value
-        the option had when off, so behaviour is the same; holding another, it is refused."""
-        data = dict(data)
-        for name, off in _REMOVED.items():
-            if name in data and not _is_off(value := data.pop(name), off):
-                raise InputError(
-                    f"config {name} was removed in this version (measured and not kept, "
-                    f"docs/ALGORITHM.md); this configuration sets it to {value!r} instead of "
-                    f"{off!r} (off), which this version cannot reproduce"
-                )
+        """The configuration ``data`` (:meth:`to_dict`) describes; an unknown key is refused
+        (:meth:`replace`). :meth:`known` splits off the keys of a stored configuration that this
+        version does not have."""
         return DEFAULT.replace(**data)
 
-
-_REMOVED: dict[str, bool | float] = {
-    "sigma_scan": 0.0,
-    "points_yield": False,
-    "pass_by_pass": False,
-    "colocation_even_centroids": False,
-    "colocation_length_rule": False,
-    "align_max_contradicted_local": 1.0,
-    "odometry_fuse": 0.0,
-}
-"""Options measured and not kept, deleted from :class:`Config`, each with the value it had when
-off: a stored configuration may still name them with that value (:meth:`Config.from_dict`)."""
-
-
-def _is_off(value: object, off: bool | float) -> bool:
-    """Whether ``value``, stored for a removed option, is ``off``, the value it had when off."""
-    if isinstance(off, bool):
-        return value is off
-    return isinstance(value, int | float) and not isinstance(value, bool) and value == off
+    @classmethod
+    def known(cls, data: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+        """``data`` split into the keys this version's Config has and the rest (an option a
+        session saved before it was deleted: options measured and not kept are deleted, not
+        kept off)."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        return (
+            {k: v for k, v in data.items() if k in names},
+            {k: v for k, v in data.items() if k not in names},
+        )
 
 
 DEFAULT = Config()

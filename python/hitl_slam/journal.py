@@ -366,6 +366,18 @@ class Journal:
             raise _corrupt(where, f"unreadable configuration: {exc}") from None
         if not isinstance(data, dict):
             raise _corrupt(where, "the configuration is not a JSON object")
+        data, dropped = Config.known(data)
+        if dropped:
+            # Only an older version wrote them (a newer schema is refused at open, and a checksum
+            # guards the row): options since deleted. The history opens as it was left (its
+            # checkpoints hold every result); later corrections use this version's method.
+            _log.warning(
+                "%s: the stored configuration names option(s) this version does not have (%s); "
+                "they are ignored: the history opens as it was, later corrections use this "
+                "version's method",
+                where,
+                ", ".join(f"{k}={v!r}" for k, v in sorted(dropped.items())),
+            )
         try:
             return Config.from_dict(data)
         except InputError as exc:
