@@ -18,6 +18,7 @@ from hitl_slam.geometry import (
     fit_line,
     integrate,
     invert,
+    line_angle,
     rotate,
     to_robot,
     to_world,
@@ -284,3 +285,21 @@ def test_fit_line_without_a_principal_direction_and_bad_input() -> None:
         fit_line(np.zeros((0, 2)))
     with pytest.raises(ValueError, match="at least one point"):
         fit_line(np.array([[math.nan, 0.0], [1.0, 1.0]]))
+
+
+def test_the_angle_between_two_lines_is_undirected_and_in_zero_to_ninety_degrees() -> None:
+    """line_angle against the smallest turn that brings one line onto the other (a line turned
+    by pi is the same line), for scalars and arrays alike."""
+    rng = np.random.default_rng(4)
+    a = rng.uniform(-4 * math.pi, 4 * math.pi, 400)
+    b = rng.uniform(-4 * math.pi, 4 * math.pi, 400)
+    by_search = np.array(
+        [min(abs(x - y - k * math.pi) for k in range(-10, 11)) for x, y in zip(a, b, strict=True)]
+    )
+    scalars = np.array([line_angle(float(x), float(y)) for x, y in zip(a, b, strict=True)])
+    np.testing.assert_allclose(scalars, by_search, atol=1e-12)
+    np.testing.assert_allclose(line_angle(a, b), scalars, atol=1e-12)
+    assert np.all((scalars >= 0.0) & (scalars <= math.pi / 2))
+    assert line_angle(0.1, 0.1 + math.pi) == pytest.approx(0.0, abs=1e-15)  # the same line
+    assert line_angle(0.0, math.pi / 2) == pytest.approx(math.pi / 2)  # perpendicular
+    assert line_angle(0.3, -0.2) == line_angle(-0.2, 0.3)

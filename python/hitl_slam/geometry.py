@@ -6,7 +6,8 @@
   points (:func:`compose`, :func:`between`, :func:`invert`, :func:`transform`,
   :func:`to_world`, :func:`chain_steps`, :func:`integrate`);
 * lines are ``(phi, rho)``: unit normal ``(cos phi, sin phi)``, ``n . p = rho`` on the line,
-  with ``rho >= 0`` (:func:`fit_line`).
+  with ``rho >= 0`` (:func:`fit_line`); the angle between two lines is undirected
+  (:func:`line_angle`).
 
 Every function is vectorised: poses broadcast over rows (a ``(3,)`` pose against ``(K, 3)``
 rows, or row by row), and :func:`wrap` takes scalars and arrays alike.
@@ -28,6 +29,7 @@ __all__ = [
     "fit_line",
     "integrate",
     "invert",
+    "line_angle",
     "principal_axes",
     "rotate",
     "to_robot",
@@ -198,6 +200,16 @@ def principal_axes(points: FloatArray) -> tuple[FloatArray, FloatArray, FloatArr
     d = points - centre
     _, vecs = np.linalg.eigh(d.T @ d)
     return centre, vecs[:, 0], vecs[:, 1]
+
+
+def line_angle(phi_a: Angles, phi_b: Angles) -> Angles:
+    """The angle [rad] between undirected lines of normal angles ``phi_a`` and ``phi_b``, in
+    [0, pi/2] (lines 10 and 190 degrees apart are parallel); scalars or arrays (a scalar pair
+    by ``math.remainder``, exactly)."""
+    if isinstance(phi_a, float | int) and isinstance(phi_b, float | int):
+        return abs(math.remainder(float(phi_a) - float(phi_b), math.pi))
+    d = np.asarray(phi_a, dtype=np.float64) - np.asarray(phi_b, dtype=np.float64)
+    return np.abs(d - math.pi * np.round(d / math.pi))
 
 
 def fit_line(points: ArrayLike) -> tuple[float, float]:

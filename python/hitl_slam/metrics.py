@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from hitl_slam import _core
 from hitl_slam.config import DEFAULT, Config
 from hitl_slam.errors import InputError
-from hitl_slam.geometry import between, fit_line, rotate, wrap
+from hitl_slam.geometry import between, fit_line, line_angle, rotate, wrap
 from hitl_slam.io.relations import Relations, nearest_scans
 from hitl_slam.map import Map
 
@@ -319,12 +319,6 @@ def _as_pair(item: FeaturePair | Sequence[object]) -> FeaturePair:
     return pair
 
 
-def _acute_angle_deg(phi_a: float, phi_b: float) -> float:
-    """Angle between two undirected lines, in [0, 90] degrees."""
-    d = abs(math.remainder(phi_a - phi_b, math.pi))
-    return math.degrees(d)
-
-
 def feature_pair_errors(
     map: Map,
     poses: ArrayLike | None,
@@ -373,7 +367,7 @@ def feature_pair_errors(
         phi_a, rho_a, centre_a = line(pair.wall_a)
         phi_b, rho_b, centre_b = line(pair.wall_b)
         if pair.kind.is_angle:
-            measured = _acute_angle_deg(phi_a, phi_b)
+            measured = math.degrees(line_angle(phi_a, phi_b))
         else:
             n_a = np.array([math.cos(phi_a), math.sin(phi_a)])
             n_b = np.array([math.cos(phi_b), math.sin(phi_b)])

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.errors import InputError
-from hitl_slam.geometry import principal_axes, to_world
+from hitl_slam.geometry import line_angle, principal_axes, to_world
 from hitl_slam.map import Map
 from hitl_slam.sim import worlds
 from hitl_slam.sim.lidar import Lidar
@@ -90,8 +90,7 @@ def fit_points(points: FloatArray) -> WallFit:
 
 def angle_between(a: WallFit, b: WallFit) -> float:
     """The angle between two undirected lines, in [0, 90] degrees."""
-    d = math.remainder(a.phi - b.phi, math.pi)
-    return math.degrees(abs(d))
+    return math.degrees(line_angle(a.phi, b.phi))
 
 
 def spacing_between(a: WallFit, b: WallFit) -> float:
