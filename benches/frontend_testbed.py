@@ -465,7 +465,7 @@ def run_one(key: str, variant: str, max_scans: int | None, bag: str | None) -> d
         assert truth is not None
         reference = truth[keep]
         if variant == REFERENCE_ODOMETRY:
-            notes.update(_reference_at_the_optimum(run_map, reference, result.map))
+            notes.update(_reference_at_the_optimum(result.map, reference))
         heading = _aligned_heading_deg(result.map.poses, reference)
         row.update(
             score="ate",
@@ -504,14 +504,12 @@ def run_one(key: str, variant: str, max_scans: int | None, bag: str | None) -> d
     return row
 
 
-def _reference_at_the_optimum(
-    run_map: Map, reference: NDArray[np.float64], front_end: Map
-) -> dict[str, Any]:
-    """How far the reference's own steps sit from the scan-matching optimum: every step matched
-    again scan to scan by ICP started at the reference's step (no rotation fan), and those
-    steps chained with the front end's loop closure pairs measured at the reference (exact
-    closures), solved with DCS; the median move of a step, and the ATE of that chain against
-    the reference. A front end whose every match reached its optimum would end about that far
+def _reference_at_the_optimum(front_end: Map, reference: NDArray[np.float64]) -> dict[str, Any]:
+    """How far the reference's own steps sit from the scan-matching optimum: every step of the
+    front end's map matched again scan to scan by ICP started at the reference's step (no
+    rotation fan), and those steps chained with the front end's loop closure pairs measured at
+    the reference (exact closures), solved with DCS; the median move of a step, and the ATE of
+    that chain against the reference. A front end whose every match reached its optimum would end about that far
     from the reference even with perfect loop closures."""
     import dataclasses
 
@@ -520,10 +518,10 @@ def _reference_at_the_optimum(
     from hitl_slam.metrics import ate
     from hitl_slam.solve import optimize
 
-    n = run_map.num_poses
+    n = front_end.num_poses
     steps = np.ascontiguousarray(chain_steps(reference))
     ok, found, _, _ = _core.match_consecutive(
-        np.ascontiguousarray(run_map.points), run_map.offsets, steps, search_deg=0.0
+        np.ascontiguousarray(front_end.points), front_end.offsets, steps, search_deg=0.0
     )
     moved = found - steps
     moved[:, 2] = wrap(moved[:, 2])

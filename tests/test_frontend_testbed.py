@@ -155,7 +155,7 @@ def test_a_bag_of_a_log_reads_back_as_the_log(tmp_path: Path) -> None:
 
 
 def test_the_optimum_diagnostic_finds_a_reference_bent_off_the_scan_matching_optimum() -> None:
-    from hitl_slam.geometry import chain_steps, compose
+    from hitl_slam.geometry import chain_steps, integrate
     from hitl_slam.slam import slam
 
     base, truth, _ = bed.base_map("seattle", 120)
@@ -163,13 +163,10 @@ def test_the_optimum_diagnostic_finds_a_reference_bent_off_the_scan_matching_opt
     own = slam(bed._subset(base, np.arange(base.num_poses, dtype=np.int64), truth)).map
     # The front end's own poses sit at (near) the optimum; the same poses with one step turned
     # by 3 degrees in the middle do not.
-    at = bed._reference_at_the_optimum(own, own.poses, own)
+    at = bed._reference_at_the_optimum(own, own.poses)
     steps = chain_steps(own.poses)
     steps[60, 2] += math.radians(3.0)
-    bent = [own.poses[0]]
-    for s in steps:
-        bent.append(compose(bent[-1], s))
-    off = bed._reference_at_the_optimum(own, np.array(bent), own)
+    off = bed._reference_at_the_optimum(own, integrate(own.poses[0], steps))
     assert at["optimum_steps_matched"] >= 110
     assert at["optimum_ate"] < 0.05, at
     assert off["optimum_ate"] > 2.0 * at["optimum_ate"] + 0.05, (at, off)
