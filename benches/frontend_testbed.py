@@ -509,8 +509,8 @@ def _reference_at_the_optimum(front_end: Map, reference: NDArray[np.float64]) ->
     front end's map matched again scan to scan by ICP started at the reference's step (no
     rotation fan), and those steps chained with the front end's loop closure pairs measured at
     the reference (exact closures), solved with DCS; the median move of a step, and the ATE of
-    that chain against the reference. A front end whose every match reached its optimum would end about that far
-    from the reference even with perfect loop closures."""
+    that chain against the reference. A front end whose every match reached its optimum would
+    end about that far from the reference even with perfect loop closures."""
     import dataclasses
 
     from hitl_slam import _core
