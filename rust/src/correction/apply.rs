@@ -175,6 +175,8 @@ pub struct Solved {
     /// Whether this solution was kept over the new correction's own because the earlier
     /// corrections it contradicts hold at a lower cost (`settle_contradiction`).
     pub contested: bool,
+    /// Whether the solve began at the map as shown rather than at the explicit step.
+    pub from_shown: bool,
 }
 
 /// The earlier relations (indices into `weights`, the active corrections' robust weights in
@@ -280,7 +282,8 @@ impl CorrectionEngine {
         Ok((moved, transform))
     }
 
-    /// The joint solve of `active` plus `h` from the explicit correction of `h`.
+    /// The joint solve of `active` plus `h`, from the explicit correction of `h` or from the
+    /// map as shown, whichever violates the factors less (docs/ALGORITHM.md §4.5).
     fn correct(
         &mut self,
         scans: &Scans,
@@ -290,22 +293,31 @@ impl CorrectionEngine {
         p: &ApplyParams,
     ) -> Result<Solved> {
         let (moved, transform) = self.explicit_and_backpropagate(current, h)?;
-        self.solve_from(scans, moved, transform, h, active, p)
+        self.solve_from(
+            scans,
+            vec![moved, current.to_vec()],
+            transform,
+            h,
+            active,
+            p,
+        )
     }
 
-    /// The joint solve of `active` plus `h` from `start`; `transform` is recorded as the
-    /// explicit correction's.
+    /// The joint solve of `active` plus `h` from the least violated of `starts` (the explicit
+    /// step first, then the map as shown, if given); `transform` is recorded as the explicit
+    /// correction's.
     fn solve_from(
         &mut self,
         scans: &Scans,
-        start: Vec<Pose2>,
+        starts: Vec<Vec<Pose2>>,
         transform: Pose2,
         h: &Interpretation,
         active: &[Active],
         p: &ApplyParams,
     ) -> Result<Solved> {
         let specs = specs_with(scans, active, h)?;
-        let (values, report) = self.solve(start, &specs, &p.weights, &p.solver)?;
+        let (values, report, chosen) =
+            self.solve_from_best(starts, &specs, &p.weights, &p.solver)?;
         let relation_weights = self.relation_weights(&specs, &report);
         Ok(Solved {
             poses: values.poses,
@@ -314,15 +326,18 @@ impl CorrectionEngine {
             report,
             relation_weights,
             contested: false,
+            from_shown: chosen == 1,
         })
     }
 
-    /// Where the new correction contradicts earlier ones (some earlier relation yields in
-    /// `solved`, which started from the new correction's explicit step, so the new statement
-    /// held from the start), the same set is solved again from the map as shown, where the
-    /// earlier statements hold, and the solution of the lower robust cost is kept: which
-    /// statements yield is decided by the robot's measurements and the number of statements on
-    /// each side, not by which came last (docs/ALGORITHM.md §I.8).
+    /// Which of two contradicting statements yields is decided by the robot's measurements and
+    /// the number of statements on each side, not by which came last (docs/ALGORITHM.md §I.8),
+    /// nor by where the solve began (§4.5). Where `solved` began at the explicit step (the new
+    /// statement held from the start) and an earlier relation yields, the same set is solved
+    /// again from the map as shown, where the earlier statements hold; where it began at the map
+    /// as shown and the new relation yields, again from the explicit step. If that solution
+    /// contradicts nothing it is kept; otherwise the one of the lower robust cost is, the one
+    /// from the map as shown marked contested (the new statement yields to earlier ones).
     fn settle_contradiction(
         &mut self,
         scans: &Scans,
@@ -332,11 +347,43 @@ impl CorrectionEngine {
         active: &[Active],
         p: &ApplyParams,
     ) -> Result<Solved> {
-        let earlier = &solved.relation_weights[..solved.relation_weights.len().saturating_sub(1)];
+        let Some((new, earlier)) = solved.relation_weights.split_last() else {
+            return Ok(solved);
+        };
+        if solved.from_shown {
+            if *new >= YIELDED || active.is_empty() {
+                return Ok(solved);
+            }
+            let (moved, transform) = self.explicit_and_backpropagate(current, h)?;
+            let explicit = self.solve_from(scans, vec![moved], transform, h, active, p)?;
+            let (_, earlier) = explicit
+                .relation_weights
+                .split_last()
+                .unwrap_or((&1.0, &[]));
+            if earlier.iter().all(|w| *w >= YIELDED) {
+                return Ok(explicit);
+            }
+            let shown = Solved {
+                contested: true,
+                ..solved
+            };
+            return Ok(if shown.report.final_cost < explicit.report.final_cost {
+                shown
+            } else {
+                explicit
+            });
+        }
         if earlier.iter().all(|w| *w >= YIELDED) {
             return Ok(solved);
         }
-        let mut other = self.solve_from(scans, current.to_vec(), solved.transform, h, active, p)?;
+        let mut other = self.solve_from(
+            scans,
+            vec![current.to_vec()],
+            solved.transform,
+            h,
+            active,
+            p,
+        )?;
         other.contested = true;
         Ok(if other.report.final_cost < solved.report.final_cost {
             other

@@ -299,19 +299,45 @@ impl CorrectionEngine {
         weights: &HumanWeights,
         params: &SolverParams,
     ) -> Result<(Values, SolveReport)> {
+        let (values, report, _) =
+            self.solve_from_best(vec![poses], corrections, weights, params)?;
+        Ok((values, report))
+    }
+
+    /// [`Self::solve`] from whichever of `starts` violates the factors least: the chi2 at face
+    /// value (no robust kernel; each correction's lines the TLS fit of its observations there)
+    /// of every start, then one solve from the lowest (the first of equals). Returns the
+    /// solution, its report and the index of the start it began at (docs/ALGORITHM.md §4.5).
+    pub fn solve_from_best(
+        &mut self,
+        starts: Vec<Vec<Pose2>>,
+        corrections: &[CorrectionSpec],
+        weights: &HumanWeights,
+        params: &SolverParams,
+    ) -> Result<(Values, SolveReport, usize)> {
         weights.validate()?;
-        let mut values = Values::from_poses(poses);
-        self.check_poses(&values)?;
+        if starts.is_empty() {
+            return input("a solve needs at least one start");
+        }
+        let mut starts: Vec<Values> = starts.into_iter().map(Values::from_poses).collect();
+        for start in &starts {
+            self.check_poses(start)?;
+        }
         let n = self.graph.num_poses();
         // Every factor is built before the graph changes, so a bad correction changes nothing.
         let mut human: Vec<Box<dyn Factor>> = Vec::new();
-        let mut lines = Vec::with_capacity(2 * corrections.len());
         for (k, c) in corrections.iter().enumerate() {
             c.validate(n)
                 .map_err(|e| HitlError::Input(format!("correction {k}: {e}")))?;
             human.extend(c.factors(2 * k, weights)?);
-            lines.push(fit_line_at(&values.poses, &c.a)?);
-            lines.push(fit_line_at(&values.poses, &c.b)?);
+        }
+        for start in &mut starts {
+            let mut lines = Vec::with_capacity(2 * corrections.len());
+            for c in corrections {
+                lines.push(fit_line_at(&start.poses, &c.a)?);
+                lines.push(fit_line_at(&start.poses, &c.b)?);
+            }
+            start.lines = lines;
         }
         // The structure: each factor's keys and rows (a colocation and a collinear statement on
         // the same observations share the keys but not the rows, and a wide factor's rows are
@@ -321,7 +347,7 @@ impl CorrectionEngine {
             .map(|f| (f.keys().to_vec(), f.residual_dim()))
             .collect();
         self.graph.truncate(self.base_factors);
-        for _ in 0..lines.len() {
+        for _ in 0..2 * corrections.len() {
             self.graph.add_line();
         }
         for f in human {
@@ -335,7 +361,17 @@ impl CorrectionEngine {
             }
             None => self.analyses += 1,
         }
-        values.lines = lines;
+        let mut chosen = 0;
+        if starts.len() > 1 {
+            let mut best = f64::INFINITY;
+            for (k, start) in starts.iter().enumerate() {
+                let chi2 = self.graph.chi2(start);
+                if chi2 < best {
+                    (best, chosen) = (chi2, k);
+                }
+            }
+        }
+        let mut values = starts.swap_remove(chosen);
         let result = optimize(&mut self.graph, &mut values, params);
         if let Some(pattern) = self.graph.take_pattern() {
             if self.patterns.len() >= PATTERN_CACHE {
@@ -343,7 +379,7 @@ impl CorrectionEngine {
             }
             self.patterns.push((key, pattern));
         }
-        Ok((values, result?))
+        Ok((values, result?, chosen))
     }
 }
 
