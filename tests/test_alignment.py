@@ -331,14 +331,16 @@ def test_correct_align_on_a_real_log(tmp_path: Path, capsys: pytest.CaptureFixtu
 
 
 @needs_logs
-def test_where_yielding_statements_would_turn_the_map_the_firm_solve_is_kept(
+def test_where_the_firm_solve_is_the_more_consistent_it_is_kept(
     tmp_path: Path,
 ) -> None:
-    """Orebro with a 30-degree jump, repaired by a careful person with 15 cm endpoint noise
-    (fault seed 1): the front end keeps one loop closure, and with the statements yielding to
-    the scans (Phi 100) the far part of the map turned about it (ATE 0.60 -> 2.15 m, walls 0.56
-    -> 16.4 deg) while every guard passed. Of the two solves the alignment now tries, the firm
-    one is the more consistent, and it is kept, journaled and used by later solves."""
+    """Belgioioso with a 30-degree jump, repaired by a careful person with 15 cm endpoint noise
+    (fault seed 0): of the two solves the alignment tries, the firm one (Phi 1000) leaves the
+    scans the more consistent (ATE 0.170 -> 0.083 m; the yielding one alone, Phi 100, 0.089),
+    and it is kept, journaled and used by later solves. The run this was first found on (Orebro,
+    seed 1, where with the statements yielding the far part of the map turned about its one loop
+    closure, ATE 0.60 -> 2.15 m) no longer folds now that solves start where the factors are
+    least violated (docs/ALGORITHM.md §4.5)."""
     out: dict[str, Any] = {}
 
     def at_end(scenario: Any, session: Session) -> None:
@@ -352,16 +354,16 @@ def test_where_yielding_statements_would_turn_the_map_the_firm_solve_is_kept(
         out["after"] = figures(np.array(session.poses))
         out["poses"] = np.array(session.poses)
         out["alignment"] = session.alignment
-        session.write_journal(tmp_path / "orebro.hitl")
+        session.write_journal(tmp_path / "belgioioso.hitl")
 
-    evaluate_run("Orebro", "jump", 0.15, seed=1, align=False, on_end=at_end)
+    evaluate_run("Belgioioso", "jump", 0.15, seed=0, align=False, on_end=at_end)
     step = out["step"]
     assert step.relation_dcs == DEFAULT.relation_dcs != DEFAULT.align_relation_dcs
     assert out["alignment"].relation_dcs == step.relation_dcs
     (ate0, angle0), (ate1, angle1) = out["before"], out["after"]
     assert ate1 < ate0, (ate0, ate1)
     assert angle1 <= angle0 + 0.2, (angle0, angle1)
-    with Session.open(tmp_path / "orebro.hitl") as s:
+    with Session.open(tmp_path / "belgioioso.hitl") as s:
         assert s.alignment is not None
         assert s.alignment.relation_dcs == DEFAULT.relation_dcs
         replayed, outcomes = s.replay()  # recomputed from scratch: the same choice

@@ -5,11 +5,9 @@ which of them it meant. Where the reading on the nearer one contradicts the pers
 corrections (one of them, or the new one, would yield: §I.8), the drawing is read again with the
 segment on the other line, and a reading that contradicts none is kept with a note.
 
-Found on Freiburg 079 (Kuemmerle et al. 2009, via Radish; CC-BY) with a person whose strokes run
-on past each end and sit beside the wall (benches/README.md §12): a near tie (6.84 against 6.78)
-put a stroke onto two other walls crossing there, three earlier corrections yielded, and the map
-ended at a mean wall-angle error of 39 degrees. The run is replayed here up to the first
-drawing read again; the tie itself comes from the data, not from a constructed world.
+Replayed from the full evaluation (Belgioioso, Kuemmerle et al. 2009 via Radish; bend, the
+careful person with 15 cm endpoint noise, seed 0): its first eight drawings, the eighth read
+again. The tie itself comes from the data, not from a constructed world.
 """
 
 from __future__ import annotations
@@ -37,7 +35,7 @@ REREAD = "read on the next line"
 CONTRADICTS = ("yield", "holds only in part")
 
 pytestmark = pytest.mark.skipif(
-    not (LASER / "freiburg-079-corrected.log.gz").is_file(),
+    not (LASER / "belgioioso-corrected.log.gz").is_file(),
     reason="needs ../shared/datasets/laser beside the repository",
 )
 
@@ -62,10 +60,9 @@ def test_a_near_tie_that_contradicts_earlier_corrections_is_read_on_the_next_lin
             seen.append({"kept": result, "first": first, "active": len(active)})
         return result
 
-    # The run's first 23 drawings, as that person drew them (before docs/ALGORITHM.md §I.19
-    # changed what the simulated person sees), replayed on the same damaged map.
-    scenario, _ = damaged_scenario("Freiburg 079", "drift", 0.10, seed=5)
-    drawings = read_corrections(DATA / "freiburg-079-drift-sloppy-seed5.jsonl")
+    # The run's drawings up to the first read again, replayed on the same damaged map.
+    scenario, _ = damaged_scenario("Belgioioso", "bend", 0.15, seed=0)
+    drawings = read_corrections(DATA / "belgioioso-bend-15cm-seed0.jsonl")
     with Session.new(scenario.map, applier=apply) as session:
         for step in drawings:
             assert isinstance(step, Apply)

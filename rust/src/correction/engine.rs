@@ -526,6 +526,49 @@ mod tests {
         }
     }
 
+    /// Of two starts, the solve begins at the one the factors (the map's and the correction's,
+    /// at face value) violate less, in either order, and answers exactly as a solve from that
+    /// start alone; no start is an error.
+    #[test]
+    fn a_solve_starts_where_the_factors_are_least_violated() {
+        let (graph, truth, a, b) = two_laps();
+        let c = CorrectionSpec {
+            mode: RelationMode::Colocation,
+            a,
+            b,
+        };
+        let turned = |by: f64| -> Vec<Pose2> {
+            let mut p = truth.clone();
+            for q in p.iter_mut().skip(20) {
+                q.theta += by;
+            }
+            p
+        };
+        let (near, far) = (turned(0.01), turned(0.2));
+        let (w, params) = (weights(), params());
+        let mut alone = CorrectionEngine::new(two_laps().0).unwrap();
+        let (v_near, r_near) = alone
+            .solve(near.clone(), std::slice::from_ref(&c), &w, &params)
+            .unwrap();
+        let mut engine = CorrectionEngine::new(graph).unwrap();
+        for (starts, expect) in [
+            (vec![far.clone(), near.clone()], 1),
+            (vec![near.clone(), far.clone()], 0),
+        ] {
+            let (v, r, chosen) = engine
+                .solve_from_best(starts, std::slice::from_ref(&c), &w, &params)
+                .unwrap();
+            assert_eq!(chosen, expect);
+            assert_eq!(r.initial_chi2.to_bits(), r_near.initial_chi2.to_bits());
+            assert_eq!(r.final_chi2.to_bits(), r_near.final_chi2.to_bits());
+            assert_eq!(v.poses, v_near.poses);
+        }
+        let err = engine
+            .solve_from_best(Vec::new(), std::slice::from_ref(&c), &w, &params)
+            .unwrap_err();
+        assert!(err.to_string().contains("at least one start"), "{err}");
+    }
+
     #[test]
     fn a_bad_correction_is_refused_and_changes_nothing() {
         let (graph, truth, a, _) = two_laps();
