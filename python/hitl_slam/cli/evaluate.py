@@ -21,12 +21,14 @@ examples:
                                        # 5 / 15 cm endpoint noise, a careful person
   hitl-slam evaluate --full --maps Orebro,Seattle --faults jump  # a part of it
   hitl-slam evaluate --full -j 2 --faults slip,scale --seed 3    # damage it was not built on
+  hitl-slam evaluate --full -j 2 --maps hall                     # a hall with few long walls
 
 The full evaluation's maps: Intel lab, Freiburg 079, Seattle, Orebro, Belgioioso, Edmonton (real
-logs), lost poses room, parallel corridors, campus; its fault models: jump (30 degrees), drift
-(15 degrees over the run), bend (10 degrees along the straightest stretch), laps (two jumps:
-three copies); with --faults also slip (one step 0.5-1.5 m off) and scale (every distance 3-6%
-off). Exit status 0 when every target is met, 1 when one is not.
+logs), lost poses room, parallel corridors, campus; with --maps also hall (100 x 50 m, booths,
+pillars and round stands, its outer walls the only long ones; generated). Its fault models: jump
+(30 degrees), drift (15 degrees over the run), bend (10 degrees along the straightest stretch),
+laps (two jumps: three copies); with --faults also slip (one step 0.5-1.5 m off) and scale
+(every distance 3-6% off). Exit status 0 when every target is met, 1 when one is not.
 
 Real logs are used when ../shared/datasets/laser (beside the repository) is present.
 """

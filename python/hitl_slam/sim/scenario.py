@@ -392,6 +392,39 @@ def campus(
     )
 
 
+def hall(
+    seed: int = 0,
+    *,
+    layout_seed: int = 0,
+    length: float = 100.0,
+    width: float = 50.0,
+    step: float = 0.3,
+    max_range: float = 30.0,
+    heading_jump_deg: float = 30.0,
+    jump_at: float = 0.5,
+    bend_deg_per_m: float = 0.0,
+    bend_over: tuple[float, float] = (0.1, 0.3),
+    noise: OdometryNoise = DEFAULT_NOISE,
+) -> Scenario:
+    """A large hall (:func:`hitl_slam.sim.hall_world.hall`, layout from ``layout_seed``) driven
+    along every aisle and back, scanned by a 30 m lidar: the outer walls, its only walls, are seen
+    from up to 30 m in the gaps between booths (about 1,700 poses with the defaults). Faults as
+    in :func:`parallel_corridors` (a 30-degree jump by default)."""
+    from hitl_slam.sim.hall_world import HALL_TOUR
+    from hitl_slam.sim.hall_world import hall as hall_floorplan
+
+    world = hall_floorplan(layout_seed, length, width)
+    truth = waypoint_trajectory(world.paths[HALL_TOUR], step, turn_radius=1.0)
+    return make_scenario(
+        world,
+        truth,
+        Lidar(max_range=max_range, resolution=math.radians(1.0)),
+        noise=noise,
+        faults=_faults(truth.shape[0], heading_jump_deg, jump_at, bend_deg_per_m, bend_over),
+        seed=seed,
+    )
+
+
 def _faults(
     n: int, jump_deg: float, jump_at: float, bend_deg_per_m: float, bend_over: tuple[float, float]
 ) -> list[Fault]:
