@@ -5,26 +5,24 @@ Long straight walls are few and far: the four outer walls are the only ones, see
 across the aisles in the gaps between booths. The booths (jagged outlines: counters, furniture,
 displays), the pillars and the round stands are clutter, seen by the lidar and labelled -1. The
 layout (which booths stand where, how wide, where the gaps, pillars and stands are) comes from
-``layout_seed``; the scoring pairs are the outer walls' (parallel, perpendicular, the hall's
-length and width), as a surveyor would measure a hall.
+``layout_seed``; the scoring pairs are the outer walls', as a room's
+(:func:`hitl_slam.sim.worlds.single_room`: parallel, perpendicular, the hall's length and width).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 from numpy.typing import NDArray
 
 from hitl_slam.errors import InputError
-from hitl_slam.sim.worlds import CORRIDOR_TOUR, FeaturePair, Floorplan
+from hitl_slam.sim.worlds import CORRIDOR_TOUR, Floorplan, single_room
 
-__all__ = ["HALL_TOUR", "hall"]
+__all__ = ["hall"]
 
 FloatArray = NDArray[np.float64]
-
-HALL_TOUR = CORRIDOR_TOUR
-"""The name of the default path in the hall's :attr:`Floorplan.paths`."""
 
 AISLE = 3.0
 """[m] Width kept free along each aisle's centre line (booths stand beside it)."""
@@ -75,7 +73,6 @@ def hall(layout_seed: int = 0, length: float = 100.0, width: float = 50.0) -> Fl
             f"a hall is 60-120 m long and 30 m to its length wide, got {length} x {width}"
         )
     rng = np.random.default_rng(layout_seed)
-    outer = np.array(_box(0.0, 0.0, length, width), dtype=np.float64)
     n_aisles = max(2, round(width / 12.0))
     aisles = [width * (k + 0.5) / n_aisles for k in range(n_aisles)]
     band = width / n_aisles  # between aisle centres
@@ -110,17 +107,6 @@ def hall(layout_seed: int = 0, length: float = 100.0, width: float = 50.0) -> Fl
         yb = 0.5 * (aisles[k] + aisles[k + 1])
         for xp in np.arange(12.0, length - 6.0, 12.0):
             clutter += _box(xp - 0.3, yb - 0.3, xp + 0.3, yb + 0.3)
-    walls = outer
-    names = ("south", "east", "north", "west")
-    south, east, north, west = 0, 1, 2, 3
-    pairs = (
-        FeaturePair(south, north, "parallel", 0.0),
-        FeaturePair(east, west, "parallel", 0.0),
-        FeaturePair(south, east, "perpendicular", 90.0),
-        FeaturePair(north, west, "perpendicular", 90.0),
-        FeaturePair(south, north, "spacing", width),
-        FeaturePair(east, west, "spacing", length),
-    )
     west_x, east_x = END_AISLE, length - END_AISLE
     tour: list[list[float]] = []
     for k, y in enumerate(aisles):
@@ -129,11 +115,10 @@ def hall(layout_seed: int = 0, length: float = 100.0, width: float = 50.0) -> Fl
     # Back to the first aisle along the cross aisle where the serpentine ended, and along it.
     start, end = (west_x, east_x) if len(aisles) % 2 == 0 else (east_x, west_x)
     tour += [[start, aisles[0]], [middle, aisles[0]], [end, aisles[0]]]
-    return Floorplan(
-        f"hall (layout {layout_seed})",
-        walls,
-        names,
-        pairs,
+    # The outer walls and their pairs are a room's: parallel, perpendicular, length and width.
+    return dataclasses.replace(
+        single_room(length, width),
+        name=f"hall (layout {layout_seed})",
         clutter=np.array(clutter, dtype=np.float64).reshape(-1, 4),
-        paths={HALL_TOUR: np.array(tour, dtype=np.float64)},
+        paths={CORRIDOR_TOUR: np.array(tour, dtype=np.float64)},
     )

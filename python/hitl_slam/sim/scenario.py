@@ -352,14 +352,13 @@ def parallel_corridors(
     corridor. Faults: a ``heading_jump_deg`` jump at fraction ``jump_at`` of the run (the paper's
     30 degree sensor failure) and a ``bend_deg_per_m`` heading drift over the fraction
     ``bend_over`` of the run (its "severely bent hallway")."""
-    world = worlds.parallel_corridors(count, length, width, spacing)
-    truth = waypoint_trajectory(world.paths[CORRIDOR_TOUR], step, turn_radius=0.6)
-    return make_scenario(
-        world,
-        truth,
+    return _toured(
+        worlds.parallel_corridors(count, length, width, spacing),
         Lidar(max_range=max_range, resolution=math.radians(1.5)),
+        step=step,
+        turn_radius=0.6,
+        faults=(heading_jump_deg, jump_at, bend_deg_per_m, bend_over),
         noise=noise,
-        faults=_faults(truth.shape[0], heading_jump_deg, jump_at, bend_deg_per_m, bend_over),
         seed=seed,
     )
 
@@ -380,14 +379,13 @@ def campus(
     """Three buildings joined by corridors, toured for about 1 km in over 3,000 poses with the
     defaults (the paper's largest map), with a heading jump and a bent stretch of corridor
     (parameters as in :func:`parallel_corridors`)."""
-    world = worlds.campus(scale, width)
-    truth = waypoint_trajectory(world.paths[CORRIDOR_TOUR], step, turn_radius=0.8)
-    return make_scenario(
-        world,
-        truth,
+    return _toured(
+        worlds.campus(scale, width),
         Lidar(max_range=max_range, resolution=math.radians(2.0)),
+        step=step,
+        turn_radius=0.8,
+        faults=(heading_jump_deg, jump_at, bend_deg_per_m, bend_over),
         noise=noise,
-        faults=_faults(truth.shape[0], heading_jump_deg, jump_at, bend_deg_per_m, bend_over),
         seed=seed,
     )
 
@@ -410,18 +408,35 @@ def hall(
     along every aisle and back, scanned by a 30 m lidar: the outer walls, its only walls, are seen
     from up to 30 m in the gaps between booths (about 1,700 poses with the defaults). Faults as
     in :func:`parallel_corridors` (a 30-degree jump by default)."""
-    from hitl_slam.sim.hall_world import HALL_TOUR
     from hitl_slam.sim.hall_world import hall as hall_floorplan
 
-    world = hall_floorplan(layout_seed, length, width)
-    truth = waypoint_trajectory(world.paths[HALL_TOUR], step, turn_radius=1.0)
-    return make_scenario(
-        world,
-        truth,
+    return _toured(
+        hall_floorplan(layout_seed, length, width),
         Lidar(max_range=max_range, resolution=math.radians(1.0)),
+        step=step,
+        turn_radius=1.0,
+        faults=(heading_jump_deg, jump_at, bend_deg_per_m, bend_over),
         noise=noise,
-        faults=_faults(truth.shape[0], heading_jump_deg, jump_at, bend_deg_per_m, bend_over),
         seed=seed,
+    )
+
+
+def _toured(
+    world: Floorplan,
+    lidar: Lidar,
+    *,
+    step: float,
+    turn_radius: float,
+    faults: tuple[float, float, float, tuple[float, float]],
+    noise: OdometryNoise,
+    seed: int,
+) -> Scenario:
+    """``world`` driven along its tour (:data:`~hitl_slam.sim.worlds.CORRIDOR_TOUR`) every
+    ``step`` metres and scanned by ``lidar``; ``faults`` are :func:`_faults`' jump (degrees, at
+    a fraction of the run) and bend (degrees per metre over a fraction of the run)."""
+    truth = waypoint_trajectory(world.paths[CORRIDOR_TOUR], step, turn_radius=turn_radius)
+    return make_scenario(
+        world, truth, lidar, noise=noise, faults=_faults(truth.shape[0], *faults), seed=seed
     )
 
 

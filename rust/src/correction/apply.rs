@@ -335,9 +335,10 @@ impl CorrectionEngine {
     /// nor by where the solve began (§4.5). Where `solved` began at the explicit step (the new
     /// statement held from the start) and an earlier relation yields, the same set is solved
     /// again from the map as shown, where the earlier statements hold; where it began at the map
-    /// as shown and the new relation yields, again from the explicit step. If that solution
-    /// contradicts nothing it is kept; otherwise the one of the lower robust cost is, the one
-    /// from the map as shown marked contested (the new statement yields to earlier ones).
+    /// as shown and the new relation yields, again from the explicit step, whose solution is
+    /// kept outright if no earlier relation yields in it. Otherwise the one of the lower robust
+    /// cost is kept (the explicit one on a tie), the one from the map as shown marked contested
+    /// (the new statement yields to earlier ones).
     fn settle_contradiction(
         &mut self,
         scans: &Scans,
@@ -347,48 +348,34 @@ impl CorrectionEngine {
         active: &[Active],
         p: &ApplyParams,
     ) -> Result<Solved> {
-        let Some((new, earlier)) = solved.relation_weights.split_last() else {
-            return Ok(solved);
+        let earlier_yield = |s: &Solved| {
+            let earlier = s.relation_weights.split_last().map_or(&[][..], |(_, e)| e);
+            earlier.iter().any(|w| *w < YIELDED)
         };
-        if solved.from_shown {
-            if *new >= YIELDED || active.is_empty() {
-                return Ok(solved);
+        let new_yields = solved.relation_weights.last().is_some_and(|w| *w < YIELDED);
+        let other_start = match solved.from_shown {
+            true if new_yields && !active.is_empty() => {
+                self.explicit_and_backpropagate(current, h)?.0
             }
-            let (moved, transform) = self.explicit_and_backpropagate(current, h)?;
-            let explicit = self.solve_from(scans, vec![moved], transform, h, active, p)?;
-            let (_, earlier) = explicit
-                .relation_weights
-                .split_last()
-                .unwrap_or((&1.0, &[]));
-            if earlier.iter().all(|w| *w >= YIELDED) {
-                return Ok(explicit);
+            false if earlier_yield(&solved) => current.to_vec(),
+            _ => return Ok(solved),
+        };
+        let other = self.solve_from(scans, vec![other_start], solved.transform, h, active, p)?;
+        let (explicit, shown) = if solved.from_shown {
+            if !earlier_yield(&other) {
+                return Ok(other);
             }
-            let shown = Solved {
-                contested: true,
-                ..solved
-            };
-            return Ok(if shown.report.final_cost < explicit.report.final_cost {
-                shown
-            } else {
-                explicit
-            });
-        }
-        if earlier.iter().all(|w| *w >= YIELDED) {
-            return Ok(solved);
-        }
-        let mut other = self.solve_from(
-            scans,
-            vec![current.to_vec()],
-            solved.transform,
-            h,
-            active,
-            p,
-        )?;
-        other.contested = true;
-        Ok(if other.report.final_cost < solved.report.final_cost {
-            other
+            (other, solved)
         } else {
-            solved
+            (solved, other)
+        };
+        Ok(if shown.report.final_cost < explicit.report.final_cost {
+            Solved {
+                contested: true,
+                ..shown
+            }
+        } else {
+            explicit
         })
     }
 
